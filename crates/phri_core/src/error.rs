@@ -1,0 +1,60 @@
+//! The one error type of the core. Every variant names the argument it is about, so the Python
+//! layer can map it to a typed exception whose message says what was expected.
+
+use thiserror::Error;
+
+/// Result alias used across the core.
+pub type Result<T> = std::result::Result<T, PhriError>;
+
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum PhriError {
+    /// An array or slice has the wrong length or shape.
+    #[error("{arg} must have shape {expected}, got {got}")]
+    Shape { arg: String, expected: String, got: String },
+
+    /// A value that must be finite holds NaN or ±inf.
+    #[error("{arg} must be finite, got {value} at index {index}")]
+    NonFinite { arg: String, index: usize, value: f64 },
+
+    /// A scalar or setting outside its allowed range.
+    #[error("{arg} {reason}")]
+    InvalidParameter { arg: String, reason: String },
+
+    /// A name (frame, joint, feature) that the model does not know.
+    #[error("{arg}: unknown {kind} '{name}'; known: {known}")]
+    UnknownName { arg: String, kind: String, name: String, known: String },
+
+    /// A robot description that cannot be read or does not describe a usable chain.
+    #[error("{arg}: {reason}")]
+    Urdf { arg: String, reason: String },
+
+    /// An iterative solver stopped without meeting its tolerance.
+    #[error("{what} did not converge after {iterations} iterations (residual {residual:e})")]
+    NotConverged { what: String, iterations: usize, residual: f64 },
+}
+
+impl PhriError {
+    pub(crate) fn shape(arg: &str, expected: impl Into<String>, got: impl Into<String>) -> Self {
+        PhriError::Shape { arg: arg.into(), expected: expected.into(), got: got.into() }
+    }
+
+    pub(crate) fn invalid(arg: &str, reason: impl Into<String>) -> Self {
+        PhriError::InvalidParameter { arg: arg.into(), reason: reason.into() }
+    }
+}
+
+/// Checks that `values` has `len` entries, all finite.
+pub fn check_vector(arg: &str, values: &[f64], len: usize) -> Result<()> {
+    if values.len() != len {
+        return Err(PhriError::shape(arg, format!("({len},)"), format!("({},)", values.len())));
+    }
+    check_finite(arg, values)
+}
+
+/// Checks that every entry of `values` is finite.
+pub fn check_finite(arg: &str, values: &[f64]) -> Result<()> {
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(PhriError::NonFinite { arg: arg.into(), index, value: values[index] }),
+        None => Ok(()),
+    }
+}

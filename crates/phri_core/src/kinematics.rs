@@ -1,0 +1,110 @@
+//! Forward kinematics, frame poses and world-aligned frame Jacobians.
+
+use nalgebra::{Matrix6xX, Rotation3, Translation3, Vector3};
+
+use crate::data::RobotData;
+use crate::error::{check_vector, PhriError, Result};
+use crate::model::{FrameId, JointKind, RobotModel, Transform};
+
+/// Motion of one joint at position q: rotation by q [rad] or translation by q [m] along `axis`.
+#[inline]
+fn joint_motion(kind: JointKind, axis: &Vector3<f64>, q: f64) -> Transform {
+    match kind {
+        JointKind::Revolute => {
+            // Rodrigues' formula; cheaper than going through a quaternion.
+            let (s, c) = q.sin_cos();
+            let (x, y, z) = (axis.x, axis.y, axis.z);
+            let t = 1.0 - c;
+            let m = nalgebra::Matrix3::new(
+                t * x * x + c,
+                t * x * y - s * z,
+                t * x * z + s * y,
+                t * x * y + s * z,
+                t * y * y + c,
+                t * y * z - s * x,
+                t * x * z - s * y,
+                t * y * z + s * x,
+                t * z * z + c,
+            );
+            Transform::from_parts(Translation3::identity(), Rotation3::from_matrix_unchecked(m))
+        }
+        JointKind::Prismatic => Transform::from_parts(Translation3::from(axis * q), Rotation3::identity()),
+    }
+}
+
+impl RobotModel {
+    /// Computes the pose of every body for joint positions `q` [rad or m], into `data`.
+    pub fn forward_kinematics(&self, q: &[f64], data: &mut RobotData) -> Result<()> {
+        check_vector("q", q, self.nq())?;
+        self.forward_kinematics_unchecked(q, data);
+        Ok(())
+    }
+
+    /// [`forward_kinematics`](Self::forward_kinematics) for a `q` already known to have length
+    /// `nq()` (for inner loops that validated once).
+    #[inline]
+    pub fn forward_kinematics_unchecked(&self, q: &[f64], data: &mut RobotData) {
+        debug_assert_eq!(q.len(), self.nq());
+        for (i, joint) in self.joints.iter().enumerate() {
+            let parent = data.base_t_body[i] * joint.parent_t_joint;
+            data.axis[i] = parent.rotation * joint.axis.into_inner();
+            data.base_t_body[i + 1] = parent * joint_motion(joint.kind, &joint.axis, q[i]);
+        }
+    }
+
+    /// Pose of `frame` in the base frame, after [`forward_kinematics`](Self::forward_kinematics).
+    #[inline]
+    pub fn frame_pose(&self, frame: FrameId, data: &RobotData) -> Transform {
+        let f = &self.frames[frame.0];
+        data.base_t_body[f.body] * f.body_t_frame
+    }
+
+    /// The 6×nq Jacobian of `frame`'s origin, rows (linear [m/s], angular [rad/s]) per unit joint
+    /// velocity, expressed in base-frame axes ("local world aligned"), after forward kinematics.
+    pub fn frame_jacobian(&self, frame: FrameId, data: &RobotData, jacobian: &mut Matrix6xX<f64>) -> Result<()> {
+        if jacobian.ncols() != self.nq() {
+            return Err(PhriError::shape("jacobian", format!("(6, {})", self.nq()), format!("(6, {})", jacobian.ncols())));
+        }
+        self.frame_jacobian_unchecked(frame, data, jacobian);
+        Ok(())
+    }
+
+    #[inline]
+    pub(crate) fn frame_jacobian_unchecked(&self, frame: FrameId, data: &RobotData, jacobian: &mut Matrix6xX<f64>) {
+        let body = self.frames[frame.0].body;
+        let p = self.frame_pose(frame, data).translation.vector;
+        for (i, joint) in self.joints.iter().enumerate() {
+            let mut col = jacobian.column_mut(i);
+            if i >= body {
+                col.fill(0.0);
+                continue;
+            }
+            let z = data.axis[i];
+            match joint.kind {
+                JointKind::Revolute => {
+                    let v = z.cross(&(p - data.base_t_body[i + 1].translation.vector));
+                    col.fixed_rows_mut::<3>(0).copy_from(&v);
+                    col.fixed_rows_mut::<3>(3).copy_from(&z);
+                }
+                JointKind::Prismatic => {
+                    col.fixed_rows_mut::<3>(0).copy_from(&z);
+                    col.fixed_rows_mut::<3>(3).fill(0.0);
+                }
+            }
+        }
+    }
+
+    /// Checks that `q` lies within the position limits, naming the first joint outside them.
+    pub fn check_within_limits(&self, arg: &str, q: &[f64]) -> Result<()> {
+        check_vector(arg, q, self.nq())?;
+        for (j, (joint, &v)) in self.joints.iter().zip(q).enumerate() {
+            if v < joint.lower || v > joint.upper {
+                return Err(PhriError::invalid(
+                    arg,
+                    format!("[{j}] = {v} is outside the limits [{}, {}] of joint '{}'", joint.lower, joint.upper, joint.name),
+                ));
+            }
+        }
+        Ok(())
+    }
+}

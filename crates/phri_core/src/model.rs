@@ -1,0 +1,350 @@
+//! The immutable robot model: a serial chain of revolute or prismatic joints read from a URDF.
+//!
+//! Links rigidly attached to a chain body (through fixed joints, or through movable joints that are
+//! off the base→tip path, which are locked at zero) are merged into that body: their inertia is
+//! lumped and each keeps a named [`Frame`]. Body 0 is the fixed base; body `i` (1-based) moves with
+//! joint `i`. All mutable scratch lives in [`crate::RobotData`], so the model can be shared freely.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Unit, Vector3};
+
+use crate::error::{PhriError, Result};
+
+/// Rigid transform with a rotation matrix (cheap to apply and to read rotation entries from).
+pub type Transform = IsometryMatrix3<f64>;
+
+/// Standard gravity along −z of the base frame [m/s²].
+pub const STANDARD_GRAVITY: f64 = 9.81;
+
+/// How a chain joint moves its child body.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JointKind {
+    /// Rotation about `axis` by q [rad] (URDF `revolute` and `continuous`).
+    Revolute,
+    /// Translation along `axis` by q [m].
+    Prismatic,
+}
+
+/// One movable joint of the chain.
+#[derive(Debug, Clone)]
+pub struct Joint {
+    pub name: String,
+    pub kind: JointKind,
+    /// Pose of the joint frame in the parent body's frame at q = 0 (fixed joints folded in).
+    pub parent_t_joint: Transform,
+    /// Unit motion axis in the joint frame.
+    pub axis: Unit<Vector3<f64>>,
+    /// Position limits [rad or m]; ±∞ for continuous joints.
+    pub lower: f64,
+    pub upper: f64,
+    /// Velocity limit [rad/s or m/s].
+    pub velocity_limit: f64,
+    /// Effort limit [N·m or N].
+    pub effort_limit: f64,
+}
+
+/// Mass properties of one (lumped) body, in that body's frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyInertia {
+    /// Mass [kg].
+    pub mass: f64,
+    /// Centre of mass in the body frame [m].
+    pub com: Vector3<f64>,
+    /// Rotational inertia about the centre of mass, body-frame axes [kg·m²].
+    pub inertia: Matrix3<f64>,
+}
+
+impl BodyInertia {
+    pub const ZERO: BodyInertia =
+        BodyInertia { mass: 0.0, com: Vector3::new(0.0, 0.0, 0.0), inertia: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) };
+
+    /// Combines two bodies expressed in the same frame (parallel-axis theorem).
+    pub fn combine(&self, other: &BodyInertia) -> BodyInertia {
+        let mass = self.mass + other.mass;
+        if mass <= 0.0 {
+            return BodyInertia::ZERO;
+        }
+        let com = (self.com * self.mass + other.com * other.mass) / mass;
+        let shift = |b: &BodyInertia| {
+            let d = b.com - com;
+            b.inertia + (Matrix3::identity() * d.dot(&d) - d * d.transpose()) * b.mass
+        };
+        BodyInertia { mass, com, inertia: shift(self) + shift(other) }
+    }
+
+    /// The same body seen from a frame in which this body's frame has pose `t`.
+    pub fn transformed(&self, t: &Transform) -> BodyInertia {
+        let r = t.rotation.matrix();
+        let com = t.transform_point(&nalgebra::Point3::from(self.com)).coords;
+        BodyInertia { mass: self.mass, com, inertia: r * self.inertia * r.transpose() }
+    }
+}
+
+/// A named frame rigidly attached to one body (every URDF link kept by the model is one).
+#[derive(Debug, Clone)]
+pub struct Frame {
+    pub name: String,
+    /// Index of the body it moves with (0 = base, i = child of joint i).
+    pub body: usize,
+    /// Pose of the frame in its body's frame.
+    pub body_t_frame: Transform,
+}
+
+/// Index of a frame in [`RobotModel::frames`], obtained once by name with [`RobotModel::frame_id`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct FrameId(pub usize);
+
+/// An immutable serial-chain robot.
+#[derive(Debug, Clone)]
+pub struct RobotModel {
+    pub name: String,
+    pub joints: Vec<Joint>,
+    /// Lumped inertia of body 0 (the base) and of body i, the child of joint i.
+    pub bodies: Vec<BodyInertia>,
+    pub frames: Vec<Frame>,
+    /// Gravity in the base frame [m/s²].
+    pub gravity: Vector3<f64>,
+    frame_index: HashMap<String, usize>,
+}
+
+fn pose(p: &urdf_rs::Pose) -> Transform {
+    let rot = Rotation3::from_euler_angles(p.rpy[0], p.rpy[1], p.rpy[2]);
+    IsometryMatrix3::from_parts(Translation3::new(p.xyz[0], p.xyz[1], p.xyz[2]), rot)
+}
+
+fn link_inertia(link: &urdf_rs::Link) -> BodyInertia {
+    let i = &link.inertial;
+    let local = Matrix3::new(
+        i.inertia.ixx, i.inertia.ixy, i.inertia.ixz, //
+        i.inertia.ixy, i.inertia.iyy, i.inertia.iyz, //
+        i.inertia.ixz, i.inertia.iyz, i.inertia.izz,
+    );
+    let origin = pose(&i.origin);
+    let r = origin.rotation.matrix();
+    BodyInertia { mass: i.mass.value, com: origin.translation.vector, inertia: r * local * r.transpose() }
+}
+
+impl RobotModel {
+    /// Reads a URDF file. `base` defaults to the root link; `tip` to the end of the only
+    /// leaf-most chain of movable joints (required when the tree branches).
+    pub fn from_urdf_file(path: impl AsRef<Path>, base: Option<&str>, tip: Option<&str>) -> Result<Self> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| PhriError::Urdf { arg: "path".into(), reason: format!("cannot read '{}': {e}", path.display()) })?;
+        Self::from_urdf_str(&text, base, tip).map_err(|e| match e {
+            PhriError::Urdf { arg, reason } if arg == "urdf" => {
+                PhriError::Urdf { arg: "path".into(), reason: format!("'{}': {reason}", path.display()) }
+            }
+            other => other,
+        })
+    }
+
+    /// Parses URDF text; see [`RobotModel::from_urdf_file`].
+    pub fn from_urdf_str(urdf: &str, base: Option<&str>, tip: Option<&str>) -> Result<Self> {
+        let robot = urdf_rs::read_from_string(urdf)
+            .map_err(|e| PhriError::Urdf { arg: "urdf".into(), reason: format!("not a valid URDF document ({e})") })?;
+        build(&robot, base, tip)
+    }
+
+    /// Number of movable joints in the chain.
+    pub fn nq(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// The id of a frame (any kept URDF link) by name.
+    pub fn frame_id(&self, name: &str) -> Result<FrameId> {
+        self.frame_index.get(name).map(|&i| FrameId(i)).ok_or_else(|| {
+            let mut known: Vec<&str> = self.frames.iter().map(|f| f.name.as_str()).collect();
+            known.sort_unstable();
+            PhriError::UnknownName { arg: "frame".into(), kind: "frame".into(), name: name.into(), known: known.join(", ") }
+        })
+    }
+
+    /// Lower position limits [rad or m] (−∞ for continuous joints).
+    pub fn lower_limits(&self) -> Vec<f64> {
+        self.joints.iter().map(|j| j.lower).collect()
+    }
+
+    /// Upper position limits [rad or m] (+∞ for continuous joints).
+    pub fn upper_limits(&self) -> Vec<f64> {
+        self.joints.iter().map(|j| j.upper).collect()
+    }
+
+    /// Effort limits [N·m or N].
+    pub fn effort_limits(&self) -> Vec<f64> {
+        self.joints.iter().map(|j| j.effort_limit).collect()
+    }
+
+    /// Velocity limits [rad/s or m/s].
+    pub fn velocity_limits(&self) -> Vec<f64> {
+        self.joints.iter().map(|j| j.velocity_limit).collect()
+    }
+
+    /// Adds a rigid payload (e.g. a held cup) to the body that carries `frame`.
+    /// `com` is the payload's centre of mass in that frame [m], `inertia` about it [kg·m²].
+    pub fn with_payload(mut self, frame: FrameId, mass: f64, com: Vector3<f64>, inertia: Matrix3<f64>) -> Result<Self> {
+        if !(mass.is_finite() && mass >= 0.0) {
+            return Err(PhriError::invalid("mass", format!("must be a finite mass >= 0 kg, got {mass}")));
+        }
+        if com.iter().chain(inertia.iter()).any(|v| !v.is_finite()) {
+            return Err(PhriError::invalid("com/inertia", "must be finite"));
+        }
+        let f = &self.frames[frame.0];
+        let payload = BodyInertia { mass, com, inertia }.transformed(&f.body_t_frame);
+        self.bodies[f.body] = self.bodies[f.body].combine(&payload);
+        Ok(self)
+    }
+}
+
+fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Result<RobotModel> {
+    let links: HashMap<&str, &urdf_rs::Link> = robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
+    let mut parent_joint: HashMap<&str, &urdf_rs::Joint> = HashMap::new();
+    let mut children: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
+    for j in &robot.joints {
+        for (which, name) in [("parent", &j.parent.link), ("child", &j.child.link)] {
+            if !links.contains_key(name.as_str()) {
+                return Err(PhriError::Urdf {
+                    arg: "urdf".into(),
+                    reason: format!("joint '{}' names {which} link '{name}', which is not defined", j.name),
+                });
+            }
+        }
+        if parent_joint.insert(j.child.link.as_str(), j).is_some() {
+            return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("link '{}' has two parent joints", j.child.link) });
+        }
+        children.entry(j.parent.link.as_str()).or_default().push(j);
+    }
+    let roots: Vec<&str> = robot.links.iter().map(|l| l.name.as_str()).filter(|n| !parent_joint.contains_key(n)).collect();
+    if roots.len() != 1 {
+        return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("expected one root link, found {roots:?}") });
+    }
+    let known = || {
+        let mut names: Vec<&str> = links.keys().copied().collect();
+        names.sort_unstable();
+        names.join(", ")
+    };
+    let unknown = |arg: &str, name: &str| PhriError::UnknownName { arg: arg.into(), kind: "link".into(), name: name.into(), known: known() };
+    let base = base.unwrap_or(roots[0]);
+    if !links.contains_key(base) {
+        return Err(unknown("base", base));
+    }
+    let is_movable = |j: &urdf_rs::Joint| !matches!(j.joint_type, urdf_rs::JointType::Fixed);
+    let tip = match tip {
+        Some(t) if !links.contains_key(t) => return Err(unknown("tip", t)),
+        Some(t) => t,
+        None => default_tip(base, &children, &is_movable)?,
+    };
+
+    // The base→tip path, walking up from the tip.
+    let mut path: Vec<&urdf_rs::Joint> = Vec::new();
+    let mut link = tip;
+    while link != base {
+        match parent_joint.get(link) {
+            Some(j) => {
+                path.push(j);
+                link = j.parent.link.as_str();
+            }
+            None => return Err(PhriError::invalid("tip", format!("link '{tip}' is not below the base link '{base}'"))),
+        }
+    }
+    path.reverse();
+    let on_path: std::collections::HashSet<&str> = path.iter().map(|j| j.name.as_str()).collect();
+
+    let mut joints: Vec<Joint> = Vec::new();
+    let mut bodies: Vec<BodyInertia> = vec![BodyInertia::ZERO];
+    let mut frames: Vec<Frame> = Vec::new();
+    // Depth-first over the subtree below base: (link, body, body_T_link).
+    let mut stack: Vec<(&str, usize, Transform)> = vec![(base, 0, Transform::identity())];
+    // Chain joints must get body indices in path order; DFS visits a path joint only after its
+    // parent body exists, so pushing in visit order keeps them in order along the path.
+    while let Some((name, body, body_t_link)) = stack.pop() {
+        let link = links[name];
+        bodies[body] = bodies[body].combine(&link_inertia(link).transformed(&body_t_link));
+        frames.push(Frame { name: name.to_string(), body, body_t_frame: body_t_link });
+        for j in children.get(name).map(Vec::as_slice).unwrap_or(&[]) {
+            let origin = body_t_link * pose(&j.origin);
+            if on_path.contains(j.name.as_str()) && is_movable(j) {
+                let kind = match j.joint_type {
+                    urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => JointKind::Revolute,
+                    urdf_rs::JointType::Prismatic => JointKind::Prismatic,
+                    ref other => {
+                        return Err(PhriError::Urdf {
+                            arg: "urdf".into(),
+                            reason: format!("joint '{}' has type {other:?}; only revolute, continuous, prismatic and fixed joints are supported on the chain", j.name),
+                        })
+                    }
+                };
+                let axis = Vector3::new(j.axis.xyz[0], j.axis.xyz[1], j.axis.xyz[2]);
+                if !(axis.norm() > 1e-12) || axis.iter().any(|v| !v.is_finite()) {
+                    return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("joint '{}' has a zero or invalid axis", j.name) });
+                }
+                let continuous = matches!(j.joint_type, urdf_rs::JointType::Continuous);
+                let (lower, upper) = if continuous { (f64::NEG_INFINITY, f64::INFINITY) } else { (j.limit.lower, j.limit.upper) };
+                if !continuous && !(lower <= upper) {
+                    return Err(PhriError::Urdf {
+                        arg: "urdf".into(),
+                        reason: format!("joint '{}' has lower limit {lower} above upper limit {upper}", j.name),
+                    });
+                }
+                joints.push(Joint {
+                    name: j.name.clone(),
+                    kind,
+                    parent_t_joint: origin,
+                    axis: Unit::new_normalize(axis),
+                    lower,
+                    upper,
+                    velocity_limit: j.limit.velocity,
+                    effort_limit: j.limit.effort,
+                });
+                bodies.push(BodyInertia::ZERO);
+                stack.push((j.child.link.as_str(), joints.len(), Transform::identity()));
+            } else {
+                // Fixed joints, and movable joints off the path locked at q = 0, stay on this body.
+                stack.push((j.child.link.as_str(), body, origin));
+            }
+        }
+    }
+    if joints.is_empty() {
+        return Err(PhriError::invalid("tip", format!("there is no movable joint between '{base}' and '{tip}'")));
+    }
+    let frame_index = frames.iter().enumerate().map(|(i, f)| (f.name.clone(), i)).collect();
+    Ok(RobotModel {
+        name: robot.name.clone(),
+        joints,
+        bodies,
+        frames,
+        gravity: Vector3::new(0.0, 0.0, -STANDARD_GRAVITY),
+        frame_index,
+    })
+}
+
+/// The deepest link reached through movable joints, if it is unique.
+fn default_tip<'a>(
+    base: &'a str,
+    children: &HashMap<&'a str, Vec<&'a urdf_rs::Joint>>,
+    is_movable: &dyn Fn(&urdf_rs::Joint) -> bool,
+) -> Result<&'a str> {
+    // (link, movable joints from base): keep the links with the most, then require one.
+    let mut best: Vec<&str> = vec![base];
+    let mut best_depth = 0;
+    let mut stack = vec![(base, 0usize)];
+    while let Some((link, depth)) = stack.pop() {
+        for j in children.get(link).map(Vec::as_slice).unwrap_or(&[]) {
+            let d = depth + usize::from(is_movable(j));
+            let child = j.child.link.as_str();
+            if d > best_depth {
+                best_depth = d;
+                best = vec![child];
+            } else if d == best_depth && is_movable(j) {
+                best.push(child);
+            }
+            stack.push((child, d));
+        }
+    }
+    match best.as_slice() {
+        [one] => Ok(one),
+        many => Err(PhriError::invalid("tip", format!("is required: the tree below the base has several deepest links {many:?}"))),
+    }
+}

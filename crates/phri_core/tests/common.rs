@@ -1,0 +1,24 @@
+// Shared by the integration tests (each test file includes it with `mod common;`).
+#![allow(dead_code)]
+
+use phri_core::RobotModel;
+
+pub const JACO2_URDF: &str = include_str!("../../../python/phri/robots/jaco2/j2s7s300.urdf");
+
+pub fn jaco2() -> RobotModel {
+    RobotModel::from_urdf_str(JACO2_URDF, Some("root"), Some("j2s7s300_end_effector")).unwrap()
+}
+
+pub fn deg(q: [f64; 7]) -> Vec<f64> {
+    q.iter().map(|d| d.to_radians()).collect()
+}
+
+/// A configuration inside the limits from seven numbers in [0, 1).
+pub fn within_limits(model: &RobotModel, u: &[f64]) -> Vec<f64> {
+    model
+        .joints
+        .iter()
+        .zip(u)
+        .map(|(j, &u)| if j.lower.is_finite() { j.lower + u * (j.upper - j.lower) } else { u * std::f64::consts::TAU })
+        .collect()
+}

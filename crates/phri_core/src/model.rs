@@ -57,8 +57,11 @@ pub struct BodyInertia {
 }
 
 impl BodyInertia {
-    pub const ZERO: BodyInertia =
-        BodyInertia { mass: 0.0, com: Vector3::new(0.0, 0.0, 0.0), inertia: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) };
+    pub const ZERO: BodyInertia = BodyInertia {
+        mass: 0.0,
+        com: Vector3::new(0.0, 0.0, 0.0),
+        inertia: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    };
 
     /// Combines two bodies expressed in the same frame (parallel-axis theorem).
     pub fn combine(&self, other: &BodyInertia) -> BodyInertia {
@@ -117,9 +120,15 @@ fn pose(p: &urdf_rs::Pose) -> Transform {
 fn link_inertia(link: &urdf_rs::Link) -> BodyInertia {
     let i = &link.inertial;
     let local = Matrix3::new(
-        i.inertia.ixx, i.inertia.ixy, i.inertia.ixz, //
-        i.inertia.ixy, i.inertia.iyy, i.inertia.iyz, //
-        i.inertia.ixz, i.inertia.iyz, i.inertia.izz,
+        i.inertia.ixx,
+        i.inertia.ixy,
+        i.inertia.ixz, //
+        i.inertia.ixy,
+        i.inertia.iyy,
+        i.inertia.iyz, //
+        i.inertia.ixz,
+        i.inertia.iyz,
+        i.inertia.izz,
     );
     let origin = pose(&i.origin);
     let r = origin.rotation.matrix();
@@ -225,7 +234,12 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
         names.sort_unstable();
         names.join(", ")
     };
-    let unknown = |arg: &str, name: &str| PhriError::UnknownName { arg: arg.into(), kind: "link".into(), name: name.into(), known: known() };
+    let unknown = |arg: &str, name: &str| PhriError::UnknownName {
+        arg: arg.into(),
+        kind: "link".into(),
+        name: name.into(),
+        known: known(),
+    };
     let base = base.unwrap_or(roots[0]);
     if !links.contains_key(base) {
         return Err(unknown("base", base));
@@ -278,7 +292,10 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
                 };
                 let axis = Vector3::new(j.axis.xyz[0], j.axis.xyz[1], j.axis.xyz[2]);
                 if !(axis.norm() > 1e-12) || axis.iter().any(|v| !v.is_finite()) {
-                    return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("joint '{}' has a zero or invalid axis", j.name) });
+                    return Err(PhriError::Urdf {
+                        arg: "urdf".into(),
+                        reason: format!("joint '{}' has a zero or invalid axis", j.name),
+                    });
                 }
                 let continuous = matches!(j.joint_type, urdf_rs::JointType::Continuous);
                 let (lower, upper) = if continuous { (f64::NEG_INFINITY, f64::INFINITY) } else { (j.limit.lower, j.limit.upper) };
@@ -345,6 +362,8 @@ fn default_tip<'a>(
     }
     match best.as_slice() {
         [one] => Ok(one),
-        many => Err(PhriError::invalid("tip", format!("is required: the tree below the base has several deepest links {many:?}"))),
+        many => {
+            Err(PhriError::invalid("tip", format!("is required: the tree below the base has several deepest links {many:?}")))
+        }
     }
 }

@@ -1,0 +1,56 @@
+# phri: the README's commands are targets here; CI runs `make test`.
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PIP    := $(PY) -m pip
+DEPS   := $(VENV)/.deps-installed
+BUILT  := $(VENV)/.ext-built
+CARGO_SOURCES := $(shell find crates -name '*.rs' -o -name Cargo.toml) Cargo.toml
+
+.PHONY: help dev demo test test-rust test-python lint bench bench-peers clean
+
+help:  ## List the targets
+	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
+
+$(PY):
+	python3 -m venv $(VENV)
+
+$(DEPS): pyproject.toml | $(PY)
+	$(PIP) install --quiet --upgrade pip
+	$(PIP) install --quiet "maturin>=1.7,<2" "numpy>=1.24" "pytest>=8" "pybullet>=3.2.6" "scipy>=1.11" \
+		"ruff>=0.6" "mypy>=1.10"
+	touch $@
+
+$(BUILT): $(DEPS) $(CARGO_SOURCES) pyproject.toml
+	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release --quiet
+	touch $@
+
+dev: $(BUILT)  ## Create .venv, install dependencies, build and install phri (editable)
+
+demo: $(BUILT)  ## Run the main job
+	$(VENV)/bin/phri demo
+
+test-rust:  ## Rust unit, integration and property tests
+	cargo test --workspace
+
+test-python: $(BUILT)  ## pytest (includes the PyBullet comparisons)
+	$(PY) -m pytest
+
+test: test-rust test-python  ## Everything CI runs
+
+lint: $(BUILT)  ## rustfmt, clippy, ruff, and the stub check
+	cargo fmt --all --check
+	cargo clippy --workspace --all-targets -- -D warnings
+	$(VENV)/bin/ruff check python tests benches
+	$(VENV)/bin/ruff format --check python tests benches
+	$(PY) -m mypy.stubtest phri._phri --allowlist .stubtest-allowlist
+
+bench:  ## Criterion benchmarks (median and worst case)
+	cargo bench -p phri_benches
+
+bench-peers: $(BUILT)  ## Time phri against pinocchio, PyBullet and scipy side by side
+	$(PIP) install --quiet "pin>=3"
+	$(PY) benches/peers.py
+
+clean:
+	cargo clean
+	rm -rf $(VENV)

@@ -1,0 +1,12 @@
+"""phri: robots that learn what a person wants from being pushed.
+
+Reference implementation of Bajcsy, Losey, O'Malley and Dragan, "Learning Robot Objectives from
+Physical Human Interaction" (CoRL 2017), with a Rust core. Units are SI: m, rad, s, kg, N, N·m.
+"""
+
+from __future__ import annotations
+
+from phri import exceptions
+from phri._phri import Robot, __version__
+
+__all__ = ["Robot", "__version__", "exceptions"]

@@ -1,0 +1,56 @@
+"""The exceptions phri raises.
+
+Every error about an argument is both a :class:`PhriError` and a :class:`ValueError`, so callers can
+catch the specific case (``except ShapeError``), everything from phri (``except PhriError``), or keep
+their usual ``except ValueError``. Messages name the argument and what was expected.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "ConfigError",
+    "InvalidParameterError",
+    "NonFiniteError",
+    "NotConvergedError",
+    "PhriError",
+    "ShapeError",
+    "SimulationError",
+    "UnknownNameError",
+    "UrdfError",
+]
+
+
+class PhriError(Exception):
+    """Base class of every error phri raises on purpose."""
+
+
+class ShapeError(PhriError, ValueError):
+    """An array has the wrong shape, e.g. ``q must have shape (7,), got (6,)``."""
+
+
+class NonFiniteError(PhriError, ValueError):
+    """An input holds NaN or infinity where a finite number is required."""
+
+
+class InvalidParameterError(PhriError, ValueError):
+    """A parameter is outside its allowed range (negative window, zero step, bounds crossed, ...)."""
+
+
+class UnknownNameError(PhriError, ValueError):
+    """A frame, joint, feature or task name that is not known; the message lists the known ones."""
+
+
+class UrdfError(PhriError, ValueError):
+    """A robot description that is missing, malformed, or does not describe a usable chain."""
+
+
+class ConfigError(PhriError, ValueError):
+    """A task, study or simulation file with a missing key or a wrong value (names file and key)."""
+
+
+class NotConvergedError(PhriError, RuntimeError):
+    """An iterative solver stopped without meeting its tolerance."""
+
+
+class SimulationError(PhriError, RuntimeError):
+    """The simulation produced an invalid state (e.g. NaN); logs written so far stay readable."""

@@ -7,8 +7,13 @@
 pub mod data;
 pub mod dynamics;
 pub mod error;
+pub mod features;
+pub mod impedance;
+pub mod interaction;
 pub mod kinematics;
 pub mod model;
+pub mod reference;
+pub mod update;
 
 pub use data::RobotData;
 pub use error::{PhriError, Result};

@@ -1,0 +1,242 @@
+//! The impedance control law for a 1 kHz loop (paper eqs. 5 and 6), with gravity compensation and
+//! saturation to the effort limits. Construct once; every step writes into caller storage and
+//! allocates nothing.
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector};
+
+use crate::data::RobotData;
+use crate::error::{check_finite, check_vector, PhriError, Result};
+use crate::model::RobotModel;
+
+/// A gain matrix: diagonal (one value per joint) or full n × n.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Gain {
+    Diagonal(Vec<f64>),
+    Full(DMatrix<f64>),
+}
+
+impl Gain {
+    fn check(&self, arg: &str, n: usize) -> Result<()> {
+        match self {
+            Gain::Diagonal(d) => {
+                check_vector(arg, d, n)?;
+                if let Some((i, v)) = d.iter().enumerate().find(|(_, v)| **v < 0.0) {
+                    return Err(PhriError::invalid(arg, format!("[{i}] must be >= 0, got {v}")));
+                }
+            }
+            Gain::Full(m) => {
+                if m.shape() != (n, n) {
+                    return Err(PhriError::shape(arg, format!("({n}, {n})"), format!("{:?}", m.shape())));
+                }
+                check_finite(arg, m.as_slice())?;
+            }
+        }
+        Ok(())
+    }
+
+    /// out = G·x
+    #[inline]
+    fn apply(&self, x: &DVector<f64>, out: &mut DVector<f64>) {
+        match self {
+            Gain::Diagonal(d) => out.iter_mut().zip(d).zip(x.iter()).for_each(|((o, g), v)| *o = g * v),
+            Gain::Full(m) => out.gemv(1.0, m, x, 0.0),
+        }
+    }
+}
+
+/// Gains of the law. Defaults are `ImpedanceParams::jaco2_default()`.
+#[derive(Debug, Clone)]
+pub struct ImpedanceParams {
+    /// Stiffness K_R [N·m/rad].
+    pub stiffness: Gain,
+    /// Damping B_R [N·m·s/rad].
+    pub damping: Gain,
+    /// Desired inertia M_R [kg·m²] for the full law (eq. 5); unused by eq. 6.
+    pub inertia: Option<Gain>,
+    /// Add g(q) from the model (eq. 6 as run on a real arm, which needs it to hold its own weight).
+    pub gravity_compensation: bool,
+}
+
+impl ImpedanceParams {
+    /// Gains for the JACO2 that track a plan within about 2 cm unloaded and still let a 20 N push
+    /// at the hand deflect it by several centimetres (stiffer proximal joints carry more load).
+    pub fn jaco2_default() -> Self {
+        ImpedanceParams {
+            stiffness: Gain::Diagonal(vec![100.0, 150.0, 80.0, 80.0, 30.0, 30.0, 20.0]),
+            damping: Gain::Diagonal(vec![10.0, 15.0, 8.0, 8.0, 3.0, 3.0, 2.0]),
+            inertia: None,
+            gravity_compensation: true,
+        }
+    }
+}
+
+/// What a step did beyond computing the torque.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ControlStatus {
+    /// Bit j is set when joint j was clipped to its effort limit.
+    pub saturated: u64,
+}
+
+impl ControlStatus {
+    pub fn is_saturated(&self) -> bool {
+        self.saturated != 0
+    }
+}
+
+/// An impedance controller for one robot.
+pub struct ImpedanceController {
+    model: Arc<RobotModel>,
+    data: RobotData,
+    params: ImpedanceParams,
+    effort_limits: Vec<f64>,
+    /// M_R⁻¹, precomputed once (eq. 5).
+    inertia_inv: Option<Gain>,
+    error: DVector<f64>,
+    error_dot: DVector<f64>,
+    scratch: DVector<f64>,
+    scratch2: DVector<f64>,
+    qdd: Vec<f64>,
+}
+
+impl ImpedanceController {
+    pub fn new(model: Arc<RobotModel>, params: ImpedanceParams) -> Result<Self> {
+        let n = model.nq();
+        params.stiffness.check("stiffness", n)?;
+        params.damping.check("damping", n)?;
+        let inertia_inv = match &params.inertia {
+            None => None,
+            Some(g) => {
+                g.check("inertia", n)?;
+                Some(match g {
+                    Gain::Diagonal(d) => {
+                        if let Some((i, v)) = d.iter().enumerate().find(|(_, v)| **v <= 0.0) {
+                            return Err(PhriError::invalid("inertia", format!("[{i}] must be > 0 kg·m², got {v}")));
+                        }
+                        Gain::Diagonal(d.iter().map(|v| 1.0 / v).collect())
+                    }
+                    Gain::Full(m) => Gain::Full(
+                        m.clone()
+                            .cholesky()
+                            .ok_or_else(|| PhriError::invalid("inertia", "must be symmetric positive definite"))?
+                            .inverse(),
+                    ),
+                })
+            }
+        };
+        let effort_limits = model.effort_limits();
+        Ok(ImpedanceController {
+            data: model.data(),
+            model,
+            params,
+            effort_limits,
+            inertia_inv,
+            error: DVector::zeros(n),
+            error_dot: DVector::zeros(n),
+            scratch: DVector::zeros(n),
+            scratch2: DVector::zeros(n),
+            qdd: vec![0.0; n],
+        })
+    }
+
+    pub fn params(&self) -> &ImpedanceParams {
+        &self.params
+    }
+
+    pub fn model(&self) -> &Arc<RobotModel> {
+        &self.model
+    }
+
+    /// Effort limits applied by saturation [N·m].
+    pub fn effort_limits(&self) -> &[f64] {
+        &self.effort_limits
+    }
+
+    fn errors(&mut self, q: &[f64], qd: &[f64], q_ref: &[f64], qd_ref: &[f64]) -> Result<()> {
+        let n = self.model.nq();
+        check_vector("q", q, n)?;
+        check_vector("qd", qd, n)?;
+        check_vector("q_ref", q_ref, n)?;
+        check_vector("qd_ref", qd_ref, n)?;
+        for j in 0..n {
+            self.error[j] = q_ref[j] - q[j];
+            self.error_dot[j] = qd_ref[j] - qd[j];
+        }
+        Ok(())
+    }
+
+    fn saturate(&self, tau: &mut [f64]) -> ControlStatus {
+        let mut status = ControlStatus::default();
+        for (j, (t, lim)) in tau.iter_mut().zip(&self.effort_limits).enumerate() {
+            if t.abs() > *lim {
+                *t = t.clamp(-lim, *lim);
+                status.saturated |= 1 << j.min(63);
+            }
+        }
+        status
+    }
+
+    /// Eq. 6 with gravity compensation: τ = g(q) + K_R(q_R − q) + B_R(q̇_R − q̇) [N·m], saturated.
+    pub fn torque(&mut self, q: &[f64], qd: &[f64], q_ref: &[f64], qd_ref: &[f64], tau: &mut [f64]) -> Result<ControlStatus> {
+        self.errors(q, qd, q_ref, qd_ref)?;
+        check_vector_len("tau", tau, self.model.nq())?;
+        if self.params.gravity_compensation {
+            self.model.forward_kinematics_unchecked(q, &mut self.data);
+            self.model.gravity_after_fk(&mut self.data, tau);
+        } else {
+            tau.fill(0.0);
+        }
+        self.params.stiffness.apply(&self.error, &mut self.scratch);
+        self.params.damping.apply(&self.error_dot, &mut self.scratch2);
+        for j in 0..tau.len() {
+            tau[j] += self.scratch[j] + self.scratch2[j];
+        }
+        Ok(self.saturate(tau))
+    }
+
+    /// Eq. 5 by feedback linearisation: commands the closed loop
+    /// M_R(q̈ − q̈_R) + B_R(q̇ − q̇_R) + K_R(q − q_R) = u_H, i.e. q̈* = q̈_R + M_R⁻¹(u_H + K_R e + B_R ė)
+    /// and τ = M(q)q̈* + C(q, q̇)q̇ + g(q) − u_H, with u_H the measured human torque [N·m].
+    #[allow(clippy::too_many_arguments)]
+    pub fn torque_full(
+        &mut self,
+        q: &[f64],
+        qd: &[f64],
+        q_ref: &[f64],
+        qd_ref: &[f64],
+        qdd_ref: &[f64],
+        u_h: &[f64],
+        tau: &mut [f64],
+    ) -> Result<ControlStatus> {
+        let n = self.model.nq();
+        self.errors(q, qd, q_ref, qd_ref)?;
+        check_vector("qdd_ref", qdd_ref, n)?;
+        check_vector("u_h", u_h, n)?;
+        check_vector_len("tau", tau, n)?;
+        let Some(inertia_inv) = &self.inertia_inv else {
+            return Err(PhriError::invalid("inertia", "must be set to use the full impedance law (eq. 5)"));
+        };
+        self.params.stiffness.apply(&self.error, &mut self.scratch);
+        self.params.damping.apply(&self.error_dot, &mut self.scratch2);
+        for j in 0..n {
+            self.scratch2[j] += self.scratch[j] + u_h[j];
+        }
+        inertia_inv.apply(&self.scratch2, &mut self.scratch);
+        for j in 0..n {
+            self.qdd[j] = qdd_ref[j] + self.scratch[j];
+        }
+        self.model.inverse_dynamics(q, qd, &self.qdd, &mut self.data, tau)?;
+        for j in 0..n {
+            tau[j] -= u_h[j];
+        }
+        Ok(self.saturate(tau))
+    }
+}
+
+fn check_vector_len(arg: &str, out: &[f64], n: usize) -> Result<()> {
+    if out.len() != n {
+        return Err(PhriError::shape(arg, format!("({n},)"), format!("({},)", out.len())));
+    }
+    Ok(())
+}

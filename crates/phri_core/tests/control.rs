@@ -1,0 +1,263 @@
+//! Impedance law, reference interpolation, interaction detection and the weight update.
+
+mod common;
+
+use std::sync::Arc;
+
+use common::{deg, jaco2, within_limits};
+use nalgebra::{DMatrix, DVector};
+use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
+use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
+use phri_core::reference::{Interpolation, TimedTrajectory};
+use phri_core::update::{relevance, UpdateParams, UpdateRule, WeightUpdate};
+use proptest::prelude::*;
+
+fn place_lower() -> Vec<f64> {
+    deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0])
+}
+
+#[test]
+fn on_the_reference_the_law_is_gravity_compensation() {
+    let model = Arc::new(jaco2());
+    let mut c = ImpedanceController::new(model.clone(), ImpedanceParams::jaco2_default()).unwrap();
+    let q = place_lower();
+    let mut tau = vec![0.0; 7];
+    let status = c.torque(&q, &[0.0; 7], &q, &[0.0; 7], &mut tau).unwrap();
+    let mut g = vec![0.0; 7];
+    model.gravity_torques(&q, &mut model.data(), &mut g).unwrap();
+    assert_eq!(tau, g);
+    assert!(!status.is_saturated());
+    // A position error adds K·e, a velocity error B·ė.
+    let mut q_ref = q.clone();
+    q_ref[3] += 0.01;
+    let mut qd = [0.0; 7];
+    qd[5] = 0.2;
+    c.torque(&q, &qd, &q_ref, &[0.0; 7], &mut tau).unwrap();
+    assert!((tau[3] - g[3] - 80.0 * 0.01).abs() < 1e-12);
+    assert!((tau[5] - g[5] + 3.0 * 0.2).abs() < 1e-12);
+}
+
+#[test]
+fn saturation_clips_to_the_effort_limits_and_says_so() {
+    let model = Arc::new(jaco2());
+    let mut c = ImpedanceController::new(model, ImpedanceParams::jaco2_default()).unwrap();
+    let q = place_lower();
+    let mut q_ref = q.clone();
+    q_ref[4] += 2.0; // 30 N·m/rad · 2 rad = 60 N·m > 20 N·m
+    let mut tau = vec![0.0; 7];
+    let status = c.torque(&q, &[0.0; 7], &q_ref, &[0.0; 7], &mut tau).unwrap();
+    assert_eq!(status.saturated, 1 << 4);
+    assert!((tau[4] - 20.0).abs() < 1e-12);
+}
+
+#[test]
+fn full_gains_equal_diagonal_gains_when_diagonal() {
+    let model = Arc::new(jaco2());
+    let k = vec![100.0, 150.0, 80.0, 80.0, 30.0, 30.0, 20.0];
+    let b = vec![10.0, 15.0, 8.0, 8.0, 3.0, 3.0, 2.0];
+    let diag = ImpedanceParams {
+        stiffness: Gain::Diagonal(k.clone()),
+        damping: Gain::Diagonal(b.clone()),
+        inertia: None,
+        gravity_compensation: true,
+    };
+    let full = ImpedanceParams {
+        stiffness: Gain::Full(DMatrix::from_diagonal(&DVector::from_vec(k))),
+        damping: Gain::Full(DMatrix::from_diagonal(&DVector::from_vec(b))),
+        inertia: None,
+        gravity_compensation: true,
+    };
+    let (mut c1, mut c2) =
+        (ImpedanceController::new(model.clone(), diag).unwrap(), ImpedanceController::new(model, full).unwrap());
+    let q = place_lower();
+    let q_ref: Vec<f64> = q.iter().map(|v| v + 0.02).collect();
+    let (mut t1, mut t2) = (vec![0.0; 7], vec![0.0; 7]);
+    c1.torque(&q, &[0.1; 7], &q_ref, &[0.0; 7], &mut t1).unwrap();
+    c2.torque(&q, &[0.1; 7], &q_ref, &[0.0; 7], &mut t2).unwrap();
+    for j in 0..7 {
+        assert!((t1[j] - t2[j]).abs() < 1e-12);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+
+    /// Feeding the full law's torque to the arm's own dynamics yields the closed loop of eq. 5.
+    #[test]
+    fn the_full_law_renders_the_desired_impedance(
+        u in prop::collection::vec(0.05..0.95f64, 7),
+        qd in prop::collection::vec(-0.3..0.3f64, 7),
+        dq in prop::collection::vec(-0.05..0.05f64, 7),
+        uh in prop::collection::vec(-1.0..1.0f64, 7),
+    ) {
+        let model = Arc::new(jaco2());
+        let mr = vec![0.5, 0.5, 0.3, 0.3, 0.1, 0.1, 0.1];
+        let params = ImpedanceParams { inertia: Some(Gain::Diagonal(mr.clone())), ..ImpedanceParams::jaco2_default() };
+        let mut c = ImpedanceController::new(model.clone(), params.clone()).unwrap();
+        let q = within_limits(&model, &u);
+        let q_ref: Vec<f64> = q.iter().zip(&dq).map(|(a, b)| a + b).collect();
+        let qdd_ref = [0.05; 7];
+        let mut tau = vec![0.0; 7];
+        let status = c.torque_full(&q, &qd, &q_ref, &[0.0; 7], &qdd_ref, &uh, &mut tau).unwrap();
+        prop_assume!(!status.is_saturated());
+        // Forward dynamics: q̈ = M⁻¹(τ + u_H − h).
+        let mut d = model.data();
+        let mut m = DMatrix::zeros(7, 7);
+        model.mass_matrix(&q, &mut d, &mut m).unwrap();
+        let mut h = vec![0.0; 7];
+        model.nonlinear_effects(&q, &qd, &mut d, &mut h).unwrap();
+        let rhs = DVector::from_iterator(7, (0..7).map(|j| tau[j] + uh[j] - h[j]));
+        let qdd = m.cholesky().unwrap().solve(&rhs);
+        let (Gain::Diagonal(k), Gain::Diagonal(b)) = (&params.stiffness, &params.damping) else { unreachable!() };
+        for j in 0..7 {
+            let lhs = mr[j] * (qdd[j] - qdd_ref[j]) + b[j] * qd[j] + k[j] * (q[j] - q_ref[j]);
+            prop_assert!((lhs - uh[j]).abs() < 1e-8, "joint {j}: {lhs} vs {}", uh[j]);
+        }
+    }
+}
+
+#[test]
+fn bad_gains_and_inputs_are_typed_errors() {
+    let model = Arc::new(jaco2());
+    let bad = ImpedanceParams { stiffness: Gain::Diagonal(vec![1.0; 6]), ..ImpedanceParams::jaco2_default() };
+    assert!(ImpedanceController::new(model.clone(), bad).is_err());
+    let nan = ImpedanceParams { damping: Gain::Diagonal(vec![f64::NAN; 7]), ..ImpedanceParams::jaco2_default() };
+    assert!(ImpedanceController::new(model.clone(), nan).is_err());
+    let neg = ImpedanceParams { inertia: Some(Gain::Diagonal(vec![-1.0; 7])), ..ImpedanceParams::jaco2_default() };
+    assert!(ImpedanceController::new(model.clone(), neg).is_err());
+    let mut c = ImpedanceController::new(model, ImpedanceParams::jaco2_default()).unwrap();
+    let mut tau = vec![0.0; 7];
+    let q = place_lower();
+    assert!(c.torque(&q, &[f64::INFINITY; 7], &q, &[0.0; 7], &mut tau).is_err());
+    assert!(c.torque_full(&q, &[0.0; 7], &q, &[0.0; 7], &[0.0; 7], &[0.0; 7], &mut tau).is_err(), "no inertia set");
+}
+
+#[test]
+fn the_reference_is_continuous_and_holds_its_ends() {
+    let n = 7;
+    let w: Vec<f64> = (0..31 * n).map(|i| ((i / n) as f64 * 0.3 + (i % n) as f64).sin()).collect();
+    for interp in [Interpolation::Linear, Interpolation::Cubic] {
+        let t = TimedTrajectory::new(w.clone(), n, 15.0, interp).unwrap();
+        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        // Waypoints are hit at their times.
+        for i in 0..31 {
+            t.sample(i as f64 * 0.5, &mut q, &mut qd, &mut qdd);
+            for j in 0..n {
+                assert!((q[j] - w[i * n + j]).abs() < 1e-12, "{interp:?} waypoint {i}");
+            }
+        }
+        t.sample(-1.0, &mut q, &mut qd, &mut qdd);
+        assert_eq!(&q[..], &w[..n]);
+        t.sample(20.0, &mut q, &mut qd, &mut qdd);
+        assert_eq!(&q[..], &w[30 * n..]);
+        assert!(qd.iter().all(|v| *v == 0.0));
+        // Velocity is the derivative of position (finite differences inside segments).
+        let h = 1e-6;
+        let (mut qa, mut qb) = (vec![0.0; n], vec![0.0; n]);
+        for k in 0..200 {
+            let time = 0.013 + k as f64 * 0.0731;
+            t.sample(time - h, &mut qa, &mut qd, &mut qdd);
+            t.sample(time + h, &mut qb, &mut qd, &mut qdd);
+            t.sample(time, &mut q, &mut qd, &mut qdd);
+            for j in 0..n {
+                let fd = (qb[j] - qa[j]) / (2.0 * h);
+                assert!((fd - qd[j]).abs() < 1e-5 || ((time / 0.5).fract() < 1e-5), "{interp:?} t={time}");
+            }
+        }
+    }
+    // The cubic reference is C¹: velocity is continuous across a waypoint.
+    let t = TimedTrajectory::new(w.clone(), n, 15.0, Interpolation::Cubic).unwrap();
+    let (mut q, mut qa, mut qb, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    t.sample(5.0 - 1e-9, &mut q, &mut qa, &mut qdd);
+    t.sample(5.0 + 1e-9, &mut q, &mut qb, &mut qdd);
+    for j in 0..n {
+        assert!((qa[j] - qb[j]).abs() < 1e-6);
+    }
+    assert!(TimedTrajectory::new(vec![0.0; 7], 7, 15.0, Interpolation::Cubic).is_err());
+    assert!(TimedTrajectory::new(vec![0.0; 14], 7, 0.0, Interpolation::Cubic).is_err());
+}
+
+#[test]
+fn interaction_thresholds_zero_small_components() {
+    let d = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
+    let mut u = [0.0; 7];
+    assert!(!d.detect(&[7.9, -7.9, 7.0, 1.9, 0.9, -0.9, 0.5], &mut u).unwrap());
+    assert_eq!(u, [0.0; 7]);
+    assert!(d.detect(&[9.0, 1.0, 0.0, -2.5, 0.0, 0.0, 0.0], &mut u).unwrap());
+    assert_eq!(u, [9.0, 0.0, 0.0, -2.5, 0.0, 0.0, 0.0]);
+    let biased = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), Some(vec![0.0, 0.0, 0.0, 3.0, 0.0, 0.0, 0.0])).unwrap();
+    assert!(!biased.detect(&[0.0, 0.0, 0.0, 4.5, 0.0, 0.0, 0.0], &mut u).unwrap());
+    assert!(InteractionDetector::new(vec![-1.0; 7], None).is_err());
+    assert!(d.detect(&[0.0; 6], &mut u).is_err());
+}
+
+fn params(rule: UpdateRule) -> UpdateParams {
+    UpdateParams {
+        step: vec![1.0, 2.0, 100.0],
+        lower: vec![1.0, 0.0, 0.0],
+        upper: vec![1.0, 1.0, 10.0],
+        learned: vec![false, true, true],
+        ranges: vec![1.0, 1.8761, 1.0048],
+        rule,
+    }
+}
+
+#[test]
+fn update_rules_move_the_right_weights_within_bounds() {
+    // ALL: the cost form of eq. 13, clipped.
+    let u = WeightUpdate::new(params(UpdateRule::All)).unwrap();
+    let mut w = vec![1.0, 0.5, 5.0];
+    let info = u.apply(&mut w, &[3.0, -0.1, 0.01], None).unwrap();
+    assert_eq!(w, vec![1.0, 0.7, 4.0]);
+    assert!(!info.clipped);
+    let info = u.apply(&mut w, &[0.0, -1.0, 1.0], None).unwrap();
+    assert_eq!(w, vec![1.0, 1.0, 0.0]);
+    assert!(info.clipped);
+    // MAX: only the largest range-normalised change moves.
+    let u = WeightUpdate::new(params(UpdateRule::Max)).unwrap();
+    let mut w = vec![1.0, 0.5, 5.0];
+    let info = u.apply(&mut w, &[100.0, -0.1, 0.05], None).unwrap();
+    assert_eq!(info.chosen, Some(1), "efficiency is not learned, 0.1/1.876 > 0.05/1.005");
+    assert_eq!(w, vec![1.0, 0.7, 5.0]);
+    // Confidence: scaled by relevance, which it requires.
+    let u = WeightUpdate::new(params(UpdateRule::Confidence)).unwrap();
+    let mut w = vec![1.0, 0.5, 5.0];
+    assert!(u.apply(&mut w, &[0.0, -0.1, 0.01], None).is_err());
+    u.apply(&mut w, &[0.0, -0.1, 0.01], Some(&[1.0, 0.5, 0.0])).unwrap();
+    assert!((w[1] - 0.6).abs() < 1e-12 && w[2] == 5.0);
+    // Bad parameters.
+    let mut p = params(UpdateRule::All);
+    p.lower[2] = 20.0;
+    assert!(WeightUpdate::new(p).is_err());
+    let mut p = params(UpdateRule::All);
+    p.step.pop();
+    assert!(WeightUpdate::new(p).is_err());
+}
+
+#[test]
+fn relevance_is_one_when_the_push_is_the_cheapest_way_to_change_the_feature() {
+    // Sensitivity row parallel to u_H: the push is exactly the minimum-norm torque.
+    let s = [1.0, 2.0, 0.0, 0.0, 0.0, 1.0];
+    let u_h = [0.5, 1.0, 0.0];
+    let dphi = [1.0 * 0.5 + 2.0 * 1.0, 0.0];
+    let mut r = [0.0; 2];
+    relevance(&dphi, &s, &u_h, &mut r).unwrap();
+    assert!((r[0] - 1.0).abs() < 1e-12);
+    assert_eq!(r[1], 0.0);
+}
+
+proptest! {
+    #[test]
+    fn updates_always_respect_bounds(dphi in prop::collection::vec(-100.0..100.0f64, 3), w0 in prop::collection::vec(-5.0..15.0f64, 3)) {
+        for rule in [UpdateRule::All, UpdateRule::Max] {
+            let u = WeightUpdate::new(params(rule)).unwrap();
+            let mut w = w0.clone();
+            u.clip(&mut w);
+            u.apply(&mut w, &dphi, None).unwrap();
+            let p = u.params();
+            for i in 0..3 {
+                prop_assert!(w[i] >= p.lower[i] && w[i] <= p.upper[i]);
+            }
+        }
+    }
+}

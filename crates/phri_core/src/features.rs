@@ -47,6 +47,8 @@ pub struct Segment<'a> {
     pub q_prev: &'a [f64],
     /// End waypoint q_i [rad].
     pub q: &'a [f64],
+    /// Smoothing width δ for kinked features (0 = exact); set by the optimiser, see [`huber`].
+    pub smoothing: f64,
     ws: &'a mut Workspace,
 }
 
@@ -195,7 +197,10 @@ impl Feature for Coffee {
     fn segment(&self, seg: &mut Segment<'_>, grad: Option<SegmentGrad<'_>>) -> f64 {
         let x: Vector3<f64> = seg.point(1.0).rotation.column(0).into();
         let (value, weights) = match self.form {
-            CoffeeForm::Horizontal => (x.x.abs() + x.y.abs(), Vector3::new(sign(x.x), sign(x.y), 0.0)),
+            CoffeeForm::Horizontal => {
+                let ((a, da), (b, db)) = (huber(x.x, seg.smoothing), huber(x.y, seg.smoothing));
+                (a + b, Vector3::new(da, db, 0.0))
+            }
             CoffeeForm::Dot => (1.0 - x.z, Vector3::new(0.0, 0.0, -1.0)),
         };
         if let Some(g) = grad {
@@ -207,6 +212,28 @@ impl Feature for Coffee {
             }
         }
         value
+    }
+}
+
+/// Huber smoothing of |x| with width δ: x²/(2δ) for |x| < δ, |x| − δ/2 beyond; returns (value,
+/// derivative). δ = 0 gives |x| with subgradient 0 at 0. The optimiser uses δ > 0 so L-BFGS sees a
+/// C¹ cost; learning always counts features exactly (δ = 0).
+pub fn huber(x: f64, delta: f64) -> (f64, f64) {
+    if x.abs() >= delta {
+        (x.abs() - 0.5 * delta, sign(x))
+    } else {
+        (0.5 * x * x / delta, x / delta)
+    }
+}
+
+/// Huber-smoothed hinge max(0, x): 0 for x ≤ 0, x²/(2δ) up to δ, x − δ/2 beyond; (value, slope).
+pub fn smooth_hinge(x: f64, delta: f64) -> (f64, f64) {
+    if x <= 0.0 {
+        (0.0, 0.0)
+    } else if x >= delta {
+        (x - 0.5 * delta, 1.0)
+    } else {
+        (0.5 * x * x / delta, x / delta)
     }
 }
 
@@ -256,13 +283,14 @@ impl Feature for Keepout {
             if dist >= self.radius {
                 continue;
             }
-            value += self.radius - dist;
+            let (v, slope) = smooth_hinge(self.radius - dist, seg.smoothing);
+            value += v;
             if let Some(g) = grad.as_mut() {
-                if dist > 0.0 {
+                if dist > 0.0 && slope > 0.0 {
                     let u = d / dist;
                     let jac = seg.jacobian(s);
                     for j in 0..g.this.len() {
-                        let dphi = -(u.x * jac[(0, j)] + u.y * jac[(1, j)]) * g.scale;
+                        let dphi = -(u.x * jac[(0, j)] + u.y * jac[(1, j)]) * slope * g.scale;
                         g.this[j] += s * dphi;
                         g.prev[j] += (1.0 - s) * dphi;
                     }
@@ -458,11 +486,11 @@ impl FeatureSet {
         Ok(trajectory.len() / n)
     }
 
-    fn begin_segment<'a>(ws: &'a mut Workspace, trajectory: &'a [f64], i: usize) -> Segment<'a> {
+    fn begin_segment<'a>(ws: &'a mut Workspace, trajectory: &'a [f64], i: usize, smoothing: f64) -> Segment<'a> {
         let n = ws.model.nq();
         ws.used = 0;
         ws.data_s = None;
-        Segment { q_prev: &trajectory[(i - 1) * n..i * n], q: &trajectory[i * n..(i + 1) * n], ws }
+        Segment { q_prev: &trajectory[(i - 1) * n..i * n], q: &trajectory[i * n..(i + 1) * n], smoothing, ws }
     }
 
     /// Φ(ξ) into `phi` (one entry per feature, normalised if ranges are set).
@@ -471,7 +499,7 @@ impl FeatureSet {
         self.check_out("phi", phi.len(), self.len())?;
         phi.fill(0.0);
         for i in 1..waypoints {
-            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i);
+            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
                 phi[k] += f.segment(&mut seg, None) * self.inv_range[k];
             }
@@ -485,7 +513,7 @@ impl FeatureSet {
         let k_len = self.len();
         self.check_out("out", out.len(), (waypoints - 1) * k_len)?;
         for i in 1..waypoints {
-            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i);
+            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
                 out[(i - 1) * k_len + k] = f.segment(&mut seg, None) * self.inv_range[k];
             }
@@ -503,7 +531,7 @@ impl FeatureSet {
         phi.fill(0.0);
         jac.fill(0.0);
         for i in 1..waypoints {
-            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i);
+            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
                 let block = &mut jac[k * waypoints * n..(k + 1) * waypoints * n];
                 let (before, after) = block.split_at_mut(i * n);
@@ -521,7 +549,7 @@ impl FeatureSet {
         self.check_out("weights", weights.len(), self.len())?;
         check_finite("weights", weights)?;
         self.check_out("grad", grad.len(), trajectory.len())?;
-        Ok(self.weighted_cost_gradient_unchecked(trajectory, waypoints, weights, grad))
+        Ok(self.weighted_cost_gradient_unchecked(trajectory, waypoints, weights, grad, 0.0))
     }
 
     pub(crate) fn weighted_cost_gradient_unchecked(
@@ -530,12 +558,13 @@ impl FeatureSet {
         waypoints: usize,
         weights: &[f64],
         grad: &mut [f64],
+        smoothing: f64,
     ) -> f64 {
         let n = self.ws.model.nq();
         grad.fill(0.0);
         let mut cost = 0.0;
         for i in 1..waypoints {
-            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i);
+            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i, smoothing);
             let (before, after) = grad.split_at_mut(i * n);
             let prev = &mut before[(i - 1) * n..];
             let this = &mut after[..n];
@@ -543,21 +572,6 @@ impl FeatureSet {
                 let scale = weights[k] * self.inv_range[k];
                 if scale != 0.0 {
                     cost += scale * f.segment(&mut seg, Some(SegmentGrad { scale, prev: &mut *prev, this: &mut *this }));
-                }
-            }
-        }
-        cost
-    }
-
-    /// The weighted cost alone (no gradient).
-    pub(crate) fn weighted_cost_unchecked(&mut self, trajectory: &[f64], waypoints: usize, weights: &[f64]) -> f64 {
-        let mut cost = 0.0;
-        for i in 1..waypoints {
-            let mut seg = Self::begin_segment(&mut self.ws, trajectory, i);
-            for (k, f) in self.features.iter().enumerate() {
-                let scale = weights[k] * self.inv_range[k];
-                if scale != 0.0 {
-                    cost += scale * f.segment(&mut seg, None);
                 }
             }
         }

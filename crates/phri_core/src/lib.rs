@@ -13,6 +13,7 @@ pub mod interaction;
 pub mod kinematics;
 pub mod model;
 pub mod reference;
+pub mod trajopt;
 pub mod update;
 
 pub use data::RobotData;

@@ -1,0 +1,280 @@
+//! Algorithm 1 of the paper, the online learner: it owns the current plan and the weights, and at
+//! every sampled interaction deforms the plan (eq. 7), updates the weights (eq. 13) and replans
+//! (eq. 4) warm-started, while `reference(t)` feeds the control law. With `learning = false` it is
+//! the impedance baseline: interactions are recorded but the plan never changes.
+
+use crate::deform::Deformation;
+use crate::error::{check_finite, PhriError, Result};
+use crate::features::FeatureSet;
+use crate::interaction::InteractionDetector;
+use crate::reference::{Interpolation, TimedTrajectory};
+use crate::trajopt::{TrajectoryOptimizer, TrajoptInfo};
+use crate::update::{relevance, UpdateInfo, UpdateRule, WeightUpdate};
+
+/// Timing and mode of the learner.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LearnerParams {
+    /// Learn from interactions (Algorithm 1) or only record them (impedance baseline).
+    pub learning: bool,
+    /// Time between torque samples that may trigger an update [s]: 0.1 is the original's 10 Hz,
+    /// 0.001 updates at every tick of a 1 kHz loop.
+    pub sample_period: f64,
+    /// Task duration T [s].
+    pub duration: f64,
+    /// Interpolation of the plan for the reference.
+    pub interpolation: Interpolation,
+}
+
+impl Default for LearnerParams {
+    fn default() -> Self {
+        LearnerParams { learning: true, sample_period: 0.1, duration: 15.0, interpolation: Interpolation::Cubic }
+    }
+}
+
+/// One sampled interaction and what the learner did with it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Interaction {
+    /// Time [s].
+    pub t: f64,
+    /// Thresholded interaction torque u_H [N·m].
+    pub u_h: Vec<f64>,
+    /// Φ(ξ_H) − Φ(ξ_R) (empty when not learning or when the deformation was skipped).
+    pub delta_phi: Vec<f64>,
+    /// Weights after the update.
+    pub weights: Vec<f64>,
+    /// Waypoints the deformation moved (0: skipped near the end, or not learning).
+    pub moved: usize,
+    pub update: Option<UpdateInfo>,
+    pub replan: Option<TrajoptInfo>,
+}
+
+/// What one `observe` call did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Observation {
+    /// The call fell on a sample instant (otherwise it returned at once).
+    pub sampled: bool,
+    /// The sample exceeded the interaction thresholds.
+    pub interacted: bool,
+    /// The weights changed and the robot replanned.
+    pub replanned: bool,
+}
+
+/// The learner's record, for logs and plots. Appended to only when something happens.
+#[derive(Debug, Clone, Default)]
+pub struct History {
+    pub interactions: Vec<Interaction>,
+    /// (time the plan took effect [s], waypoints N × n row-major); the first is the initial plan.
+    pub plans: Vec<(f64, Vec<f64>)>,
+}
+
+/// Algorithm 1.
+pub struct Learner {
+    params: LearnerParams,
+    features: FeatureSet,
+    deformation: Deformation,
+    update: WeightUpdate,
+    detector: InteractionDetector,
+    optimizer: TrajectoryOptimizer,
+    weights: Vec<f64>,
+    start: Vec<f64>,
+    goal: Vec<f64>,
+    plan: TimedTrajectory,
+    /// Index k of the next sample instant k·sample_period.
+    next_sample: f64,
+    // Workspaces.
+    candidate: Vec<f64>,
+    deformed: Vec<f64>,
+    shape: Vec<f64>,
+    phi_r: Vec<f64>,
+    phi_h: Vec<f64>,
+    delta_phi: Vec<f64>,
+    jacobian: Vec<f64>,
+    sensitivity: Vec<f64>,
+    relevance: Vec<f64>,
+    u_h: Vec<f64>,
+    history: History,
+}
+
+impl Learner {
+    /// Plans the initial trajectory for `weights` from `start` to `goal` (cold start).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        params: LearnerParams,
+        mut features: FeatureSet,
+        deformation: Deformation,
+        update: WeightUpdate,
+        detector: InteractionDetector,
+        mut optimizer: TrajectoryOptimizer,
+        weights: &[f64],
+        start: &[f64],
+        goal: &[f64],
+    ) -> Result<Self> {
+        let k = features.len();
+        let n = features.model().nq();
+        if update.len() != k {
+            return Err(PhriError::shape("update", format!("one step per feature ({k})"), update.len().to_string()));
+        }
+        if detector.thresholds().len() != n {
+            return Err(PhriError::shape("thresholds", format!("({n},)"), format!("({},)", detector.thresholds().len())));
+        }
+        if !(params.sample_period.is_finite() && params.sample_period > 0.0) {
+            return Err(PhriError::invalid(
+                "sample_period",
+                format!("must be a finite time > 0 s, got {}", params.sample_period),
+            ));
+        }
+        crate::error::check_vector("weights", weights, k)?;
+        let mut weights = weights.to_vec();
+        update.clip(&mut weights);
+        let m = optimizer.waypoints();
+        let mut plan0 = vec![0.0; m * n];
+        optimizer.solve(&mut features, &weights, start, goal, None, &mut plan0)?;
+        let plan = TimedTrajectory::new(plan0.clone(), n, params.duration, params.interpolation)?;
+        // The deformation of unit torques, μ·H per waypoint of a full window (for relevance).
+        let history = History { interactions: Vec::new(), plans: vec![(0.0, plan0)] };
+        Ok(Learner {
+            features,
+            deformation,
+            update,
+            detector,
+            optimizer,
+            weights,
+            start: start.to_vec(),
+            goal: goal.to_vec(),
+            plan,
+            next_sample: 0.0,
+            candidate: vec![0.0; m * n],
+            deformed: vec![0.0; m * n],
+            shape: vec![0.0; m * n],
+            phi_r: vec![0.0; k],
+            phi_h: vec![0.0; k],
+            delta_phi: vec![0.0; k],
+            jacobian: vec![0.0; k * m * n],
+            sensitivity: vec![0.0; k * n],
+            relevance: vec![0.0; k],
+            u_h: vec![0.0; n],
+            history,
+            params,
+        })
+    }
+
+    pub fn params(&self) -> &LearnerParams {
+        &self.params
+    }
+
+    /// Current weights w (cost form).
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+
+    /// Current plan ξ_R, N × n row-major.
+    pub fn plan(&self) -> &TimedTrajectory {
+        &self.plan
+    }
+
+    pub fn features(&mut self) -> &mut FeatureSet {
+        &mut self.features
+    }
+
+    pub fn history(&self) -> &History {
+        &self.history
+    }
+
+    /// The reference (q_R [rad], q̇_R [rad/s], q̈_R [rad/s²]) at time `t` [s]; allocates nothing.
+    #[inline]
+    pub fn reference(&self, t: f64, q: &mut [f64], qd: &mut [f64], qdd: &mut [f64]) {
+        self.plan.sample(t, q, qd, qdd);
+    }
+
+    /// One tick: at each sample instant, read the measured joint torque of the person
+    /// `tau_measured` [N·m] and, on an interaction, deform → update → replan. Between samples it
+    /// returns at once. No allocation unless an interaction is recorded.
+    pub fn observe(&mut self, t: f64, tau_measured: &[f64]) -> Result<Observation> {
+        check_finite("t", &[t])?;
+        let mut obs = Observation::default();
+        // Sample instants lie on the grid k·period; a tick within 10⁻⁶ periods of one counts as on it
+        // (tick times carry rounding). Missed instants are not replayed.
+        let position = t / self.params.sample_period + 1e-6;
+        if position < self.next_sample {
+            return Ok(obs);
+        }
+        self.next_sample = position.floor() + 1.0;
+        obs.sampled = true;
+        obs.interacted = self.detector.detect(tau_measured, &mut self.u_h)?;
+        if !obs.interacted {
+            return Ok(obs);
+        }
+        let mut record = Interaction {
+            t,
+            u_h: self.u_h.clone(),
+            delta_phi: Vec::new(),
+            weights: self.weights.clone(),
+            moved: 0,
+            update: None,
+            replan: None,
+        };
+        if self.params.learning {
+            self.learn(t, &mut record)?;
+            obs.replanned = record.replan.is_some();
+        }
+        self.history.interactions.push(record);
+        Ok(obs)
+    }
+
+    fn learn(&mut self, t: f64, record: &mut Interaction) -> Result<()> {
+        let n = self.plan.dof();
+        let index = self.plan.index_at(t);
+        self.deformed.copy_from_slice(self.plan.waypoints());
+        record.moved = self.deformation.deform_in_place(&mut self.deformed, n, index, &self.u_h)?;
+        if record.moved == 0 {
+            return Ok(());
+        }
+        self.features.phi(self.plan.waypoints(), &mut self.phi_r)?;
+        self.features.phi(&self.deformed, &mut self.phi_h)?;
+        for k in 0..self.delta_phi.len() {
+            self.delta_phi[k] = self.phi_h[k] - self.phi_r[k];
+        }
+        let relevance = if self.update.params().rule == UpdateRule::Confidence {
+            self.compute_relevance(index)?;
+            Some(&self.relevance[..])
+        } else {
+            None
+        };
+        let info = self.update.apply(&mut self.weights, &self.delta_phi, relevance)?;
+        record.delta_phi = self.delta_phi.clone();
+        record.weights = self.weights.clone();
+        record.update = Some(info);
+        // Replan over [0, T] from the original start, warm-started from the current plan.
+        let replan = self.optimizer.solve(
+            &mut self.features,
+            &self.weights,
+            &self.start,
+            &self.goal,
+            Some(self.plan.waypoints()),
+            &mut self.candidate,
+        )?;
+        self.plan.set_waypoints(&self.candidate)?;
+        record.replan = Some(replan);
+        self.history.plans.push((t, self.candidate.clone()));
+        Ok(())
+    }
+
+    /// Linearised sensitivity S = ∂ΔΦ/∂u_H (K × n) at the current plan, then relevance.
+    fn compute_relevance(&mut self, index: usize) -> Result<()> {
+        let (n, m, k_len) = (self.plan.dof(), self.plan.len(), self.features.len());
+        // Unit torque on every joint moves joint j of waypoint i by shape[i][j] = μ·H_i.
+        self.shape.fill(0.0);
+        let ones = vec![1.0; n];
+        self.deformation.deform_in_place(&mut self.shape, n, index, &ones)?;
+        self.features.phi_gradient(self.plan.waypoints(), &mut self.phi_r, &mut self.jacobian)?;
+        self.sensitivity.fill(0.0);
+        for k in 0..k_len {
+            for i in 0..m {
+                for j in 0..n {
+                    self.sensitivity[k * n + j] += self.jacobian[(k * m + i) * n + j] * self.shape[i * n + j];
+                }
+            }
+        }
+        relevance(&self.delta_phi, &self.sensitivity, &self.u_h, &mut self.relevance)
+    }
+}

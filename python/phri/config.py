@@ -1,0 +1,209 @@
+"""Task files: validated, frozen configuration loaded from TOML.
+
+A task names its start and goal poses, its duration, and per feature the initial weight, the true
+(demonstrated) weight, the learning step and the bounds. The study's four tasks ship with phri
+(``phri.load_task("table")``); a user passes their own file the same way (``load_task("my.toml")``).
+Errors name the file, the key and the expected value.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phri.exceptions import ConfigError, UnknownNameError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["FeatureSpec", "Scene", "Task", "load_task", "task_names"]
+
+STUDY_TASKS = ("human", "coffee", "table", "laptop")
+KNOWN_FEATURES = ("efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin")
+
+
+@dataclass(frozen=True)
+class FeatureSpec:
+    """One feature of a task's objective (cost weights)."""
+
+    name: str
+    initial: float
+    true: float
+    step: float = 0.0
+    lower: float = 0.0
+    upper: float = math.inf
+    learned: bool = True
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Where the objects are, in the robot base frame [m] (original_system.md)."""
+
+    table_height: float = -0.1016
+    laptop_center: tuple[float, float] = (-0.7929, -0.1)
+    human_center: tuple[float, float] = (0.0, 0.2)
+    radius: float = 0.4
+    samples: int = 4
+
+
+@dataclass(frozen=True)
+class Task:
+    """A validated task; angles are in radians whatever the file used."""
+
+    name: str
+    title: str
+    start: np.ndarray
+    goal: np.ndarray
+    duration: float
+    waypoints: int
+    task_feature: str
+    features: tuple[FeatureSpec, ...]
+    scene: Scene = field(default_factory=Scene)
+    source: str = "<memory>"
+
+    @property
+    def feature_names(self) -> list[str]:
+        return [f.name for f in self.features]
+
+    def vector(self, attribute: str) -> np.ndarray:
+        """One attribute of every feature as an array, e.g. ``task.vector("true")``."""
+        return np.array([getattr(f, attribute) for f in self.features], dtype=float)
+
+    @property
+    def task_index(self) -> int:
+        return self.feature_names.index(self.task_feature)
+
+
+def task_names() -> list[str]:
+    """Names of the tasks shipped with phri."""
+    folder = resources.files("phri").joinpath("tasks")
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+class _Reader:
+    """Typed access to a TOML table with errors that name the file and key."""
+
+    def __init__(self, source: str, table: dict[str, Any], prefix: str = "") -> None:
+        self.source, self.table, self.prefix = source, table, prefix
+
+    def fail(self, key: str, expected: str, got: Any = None) -> ConfigError:
+        got_text = "" if got is None else f", got {got!r}"
+        return ConfigError(f"{self.source}: key '{self.prefix}{key}' must be {expected}{got_text}")
+
+    def get(self, key: str, default: Any = ...) -> Any:
+        if key in self.table:
+            return self.table[key]
+        if default is ...:
+            raise ConfigError(f"{self.source}: missing key '{self.prefix}{key}'")
+        return default
+
+    def number(self, key: str, default: Any = ..., positive: bool = False) -> float:
+        v = self.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) and v != math.inf:
+            raise self.fail(key, "a number", v)
+        if positive and not v > 0:
+            raise self.fail(key, "a number > 0", v)
+        return float(v)
+
+    def string(self, key: str, default: Any = ...) -> str:
+        v = self.get(key, default)
+        if not isinstance(v, str):
+            raise self.fail(key, "a string", v)
+        return v
+
+    def vector(self, key: str, length: int, default: Any = ...) -> np.ndarray:
+        v = self.get(key, default)
+        ok = isinstance(v, list | tuple) and len(v) == length
+        ok = ok and all(isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+        if not ok:
+            raise self.fail(key, f"a list of {length} finite numbers", v)
+        return np.asarray(v, dtype=float)
+
+
+def _parse(data: dict[str, Any], source: str) -> Task:
+    r = _Reader(source, data)
+    angles = r.string("angles", "radians")
+    if angles not in ("degrees", "radians"):
+        raise r.fail("angles", "'degrees' or 'radians'", angles)
+    scale = math.pi / 180.0 if angles == "degrees" else 1.0
+    start, goal = r.vector("start", 7) * scale, r.vector("goal", 7) * scale
+    waypoints = r.get("waypoints", 31)
+    if isinstance(waypoints, bool) or not isinstance(waypoints, int) or waypoints < 3:
+        raise r.fail("waypoints", "an integer >= 3", waypoints)
+    feats = r.get("features")
+    if not isinstance(feats, dict) or not feats:
+        raise r.fail("features", "a table of feature tables, e.g. [features.table]", feats)
+    specs = []
+    for name, table in feats.items():
+        if name not in KNOWN_FEATURES:
+            raise ConfigError(f"{source}: key 'features.{name}': unknown feature; known: {', '.join(KNOWN_FEATURES)}")
+        if not isinstance(table, dict):
+            raise r.fail(f"features.{name}", "a table", table)
+        f = _Reader(source, table, f"features.{name}.")
+        learned = f.get("learned", True)
+        if not isinstance(learned, bool):
+            raise f.fail("learned", "true or false", learned)
+        initial, true = f.number("initial"), f.number("true")
+        lower, upper = f.number("lower", initial if not learned else 0.0), f.number("upper", math.inf)
+        if not learned:
+            lower, upper = min(lower, initial), max(upper if upper != math.inf else initial, initial)
+        if lower > upper:
+            raise f.fail("lower", f"<= upper ({upper})", lower)
+        step = f.number("step", 0.0)
+        if step < 0:
+            raise f.fail("step", "a number >= 0", step)
+        specs.append(FeatureSpec(name, initial, true, step, lower, upper, learned))
+    task_feature = r.string("task_feature")
+    if task_feature not in feats:
+        raise r.fail("task_feature", f"one of the task's features {list(feats)}", task_feature)
+    s = _Reader(source, r.get("scene", {}), "scene.")
+    samples = s.get("samples", 4)
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        raise s.fail("samples", "an integer >= 1", samples)
+    scene = Scene(
+        table_height=s.number("table_height", Scene.table_height),
+        laptop_center=tuple(s.vector("laptop_center", 2, list(Scene.laptop_center))),  # type: ignore[arg-type]
+        human_center=tuple(s.vector("human_center", 2, list(Scene.human_center))),  # type: ignore[arg-type]
+        radius=s.number("radius", Scene.radius, positive=True),
+        samples=samples,
+    )
+    return Task(
+        name=r.string("name"),
+        title=r.string("title", ""),
+        start=start,
+        goal=goal,
+        duration=r.number("duration", 15.0, positive=True),
+        waypoints=waypoints,
+        task_feature=task_feature,
+        features=tuple(specs),
+        scene=scene,
+        source=source,
+    )
+
+
+def load_task(name_or_path: str | Path) -> Task:
+    """A shipped task by name (``"human"``, ``"coffee"``, ``"table"``, ``"laptop"``) or a TOML file."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        if not path.is_file():
+            raise ConfigError(f"{path}: task file not found")
+        source, text = str(path), path.read_text(encoding="utf-8")
+    else:
+        name = str(name_or_path)
+        if name not in task_names():
+            raise UnknownNameError(f"task: unknown task '{name}'; known: {', '.join(task_names())}")
+        res = resources.files("phri").joinpath("tasks", f"{name}.toml")
+        source, text = f"phri/tasks/{name}.toml", res.read_text(encoding="utf-8")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{source}: not valid TOML ({e})") from None
+    return _parse(data, source)

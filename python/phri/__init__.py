@@ -7,6 +7,39 @@ Physical Human Interaction" (CoRL 2017), with a Rust core. Units are SI: m, rad,
 from __future__ import annotations
 
 from phri import exceptions
-from phri._phri import Robot, __version__
+from phri.config import Task, load_task, task_names
+from phri._phri import (
+    Deformation,
+    Features,
+    ImpedanceController,
+    InteractionDetector,
+    Learner,
+    Robot,
+    TimedTrajectory,
+    TrajectoryOptimizer,
+    TrajoptInfo,
+    UpdateInfo,
+    WeightUpdate,
+    __version__,
+    relevance,
+)
 
-__all__ = ["Robot", "__version__", "exceptions"]
+__all__ = [
+    "Deformation",
+    "Features",
+    "ImpedanceController",
+    "InteractionDetector",
+    "Learner",
+    "Robot",
+    "TimedTrajectory",
+    "TrajectoryOptimizer",
+    "TrajoptInfo",
+    "UpdateInfo",
+    "WeightUpdate",
+    "Task",
+    "__version__",
+    "exceptions",
+    "load_task",
+    "task_names",
+    "relevance",
+]

@@ -34,6 +34,7 @@ pub struct SegmentGrad<'a> {
     pub this: &'a mut [f64],
 }
 
+#[derive(Clone)]
 struct Sample {
     s: f64,
     point: Point,
@@ -52,6 +53,7 @@ pub struct Segment<'a> {
     ws: &'a mut Workspace,
 }
 
+#[derive(Clone)]
 struct Workspace {
     model: Arc<RobotModel>,
     frame: FrameId,
@@ -117,8 +119,25 @@ impl Segment<'_> {
     }
 }
 
-/// One per-segment feature φ(q_{i-1}, q_i).
-pub trait Feature: Send + Sync {
+/// Lets a `Box<dyn Feature>` be cloned; implemented for every `Feature + Clone` automatically.
+pub trait FeatureClone {
+    fn clone_box(&self) -> Box<dyn Feature>;
+}
+
+impl<T: Feature + Clone + 'static> FeatureClone for T {
+    fn clone_box(&self) -> Box<dyn Feature> {
+        Box::new(self.clone())
+    }
+}
+
+impl Clone for Box<dyn Feature> {
+    fn clone(&self) -> Self {
+        self.clone_box()
+    }
+}
+
+/// One per-segment feature φ(q_{i-1}, q_i). Derive `Clone` on your type (see [`FeatureClone`]).
+pub trait Feature: FeatureClone + Send + Sync {
     /// The feature's name (unique within a set).
     fn name(&self) -> &str;
     /// φ on this segment; if `grad` is given, adds the scaled gradient to it.
@@ -126,7 +145,7 @@ pub trait Feature: Send + Sync {
 }
 
 /// Path length in joint space: φ = ‖q_i − q_{i-1}‖² [rad²].
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Copy, Default)]
 pub struct Efficiency;
 
 impl Feature for Efficiency {
@@ -387,6 +406,7 @@ pub fn builtin(name: &str, scene: &SceneParams) -> Result<Box<dyn Feature>> {
 
 /// An ordered set of features over one robot, with its own workspace (reuse it: calls allocate
 /// nothing once the per-segment cache has grown to the largest sample count).
+#[derive(Clone)]
 pub struct FeatureSet {
     features: Vec<Box<dyn Feature>>,
     /// 1 / normalisation range per feature (1 when not normalised).

@@ -5,12 +5,14 @@
 //! m, rad, s, kg, N, N·m.
 
 pub mod data;
+pub mod deform;
 pub mod dynamics;
 pub mod error;
 pub mod features;
 pub mod impedance;
 pub mod interaction;
 pub mod kinematics;
+pub mod learner;
 pub mod model;
 pub mod reference;
 pub mod trajopt;

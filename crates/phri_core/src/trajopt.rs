@@ -50,6 +50,11 @@ pub struct TrajoptParams {
     pub smoothing: f64,
     /// Frames kept above the table (e.g. link_7 and the hand's tool point).
     pub clearance: Vec<Clearance>,
+    /// Largest joint move between consecutive waypoints [rad] (velocity limit × waypoint spacing),
+    /// one per joint; empty for none. A quadratic penalty with `step_weight`.
+    pub max_step: Vec<f64>,
+    /// Penalty weight of `max_step` [cost per rad²].
+    pub step_weight: f64,
 }
 
 impl Default for TrajoptParams {
@@ -62,6 +67,8 @@ impl Default for TrajoptParams {
             memory: 20,
             smoothing: 0.05,
             clearance: Vec::new(),
+            max_step: Vec::new(),
+            step_weight: 1e3,
         }
     }
 }
@@ -85,6 +92,7 @@ pub struct TrajoptInfo {
 }
 
 /// A reusable optimiser for trajectories of `waypoints` × `dof` (workspaces sized once).
+#[derive(Clone)]
 pub struct TrajectoryOptimizer {
     params: TrajoptParams,
     waypoints: usize,
@@ -130,6 +138,12 @@ impl TrajectoryOptimizer {
             }
             if !(c.min_z.is_finite() && c.weight.is_finite() && c.weight > 0.0) {
                 return Err(PhriError::invalid("clearance", "min_z must be finite and weight finite and > 0"));
+            }
+        }
+        if !params.max_step.is_empty() {
+            check_vector("max_step", &params.max_step, dof)?;
+            if params.max_step.iter().any(|v| *v <= 0.0) || !(params.step_weight.is_finite() && params.step_weight > 0.0) {
+                return Err(PhriError::invalid("max_step", "entries and step_weight must be > 0"));
             }
         }
         let interior = waypoints - 2;
@@ -209,6 +223,24 @@ impl TrajectoryOptimizer {
                 }
             }
             cost += penalty;
+        }
+        if !self.params.max_step.is_empty() {
+            let (n, w) = (self.dof, self.params.step_weight);
+            let mut step_penalty = 0.0;
+            for i in 1..self.waypoints {
+                for (j, limit) in self.params.max_step.iter().enumerate() {
+                    let d = traj[i * n + j] - traj[(i - 1) * n + j];
+                    let excess = d.abs() - limit;
+                    if excess > 0.0 {
+                        step_penalty += w * excess * excess;
+                        let g = 2.0 * w * excess * d.signum();
+                        grad[i * n + j] += g;
+                        grad[(i - 1) * n + j] -= g;
+                    }
+                }
+            }
+            penalty += step_penalty;
+            cost += step_penalty;
         }
         (cost, penalty)
     }

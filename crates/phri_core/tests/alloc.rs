@@ -50,6 +50,7 @@ fn a_control_tick_allocates_nothing() {
         detector.detect(&[0.5, 9.0, 0.0, 0.0, 0.0, 0.0, 0.0], &mut u_h).unwrap();
         controller.torque(&q, &qd, &q_ref, &qd_ref, &mut tau).unwrap();
         controller.torque_full(&q, &qd, &q_ref, &qd_ref, &qdd_ref, &u_h, &mut tau).unwrap();
+        controller.torque_implicit(&q, &qd, &q_ref, &qd_ref, 1e-3, &mut tau).unwrap();
         if k % 100 == 0 {
             plan2.set_waypoints(&waypoints).unwrap();
         }

@@ -33,8 +33,8 @@ fn on_the_reference_the_law_is_gravity_compensation() {
     let mut qd = [0.0; 7];
     qd[5] = 0.2;
     c.torque(&q, &qd, &q_ref, &[0.0; 7], &mut tau).unwrap();
-    assert!((tau[3] - g[3] - 80.0 * 0.01).abs() < 1e-12);
-    assert!((tau[5] - g[5] + 3.0 * 0.2).abs() < 1e-12);
+    assert!((tau[3] - g[3] - 150.0 * 0.01).abs() < 1e-12);
+    assert!((tau[5] - g[5] + 5.0 * 0.2).abs() < 1e-12);
 }
 
 #[test]
@@ -43,7 +43,7 @@ fn saturation_clips_to_the_effort_limits_and_says_so() {
     let mut c = ImpedanceController::new(model, ImpedanceParams::jaco2_default()).unwrap();
     let q = place_lower();
     let mut q_ref = q.clone();
-    q_ref[4] += 2.0; // 30 N·m/rad · 2 rad = 60 N·m > 20 N·m
+    q_ref[4] += 2.0; // 50 N·m/rad · 2 rad = 100 N·m > 20 N·m
     let mut tau = vec![0.0; 7];
     let status = c.torque(&q, &[0.0; 7], &q_ref, &[0.0; 7], &mut tau).unwrap();
     assert_eq!(status.saturated, 1 << 4);
@@ -53,8 +53,8 @@ fn saturation_clips_to_the_effort_limits_and_says_so() {
 #[test]
 fn full_gains_equal_diagonal_gains_when_diagonal() {
     let model = Arc::new(jaco2());
-    let k = vec![100.0, 150.0, 80.0, 80.0, 30.0, 30.0, 20.0];
-    let b = vec![10.0, 15.0, 8.0, 8.0, 3.0, 3.0, 2.0];
+    let k = vec![200.0, 300.0, 150.0, 150.0, 50.0, 50.0, 30.0];
+    let b = vec![20.0, 30.0, 15.0, 15.0, 5.0, 5.0, 3.0];
     let diag = ImpedanceParams {
         stiffness: Gain::Diagonal(k.clone()),
         damping: Gain::Diagonal(b.clone()),
@@ -258,6 +258,47 @@ proptest! {
             for i in 0..3 {
                 prop_assert!(w[i] >= p.lower[i] && w[i] <= p.upper[i]);
             }
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+
+    /// The implicit law satisfies its definition with the arm's own dynamics, and tends to eq. 6.
+    #[test]
+    fn the_implicit_law_is_eq_6_at_the_predicted_state(
+        u in prop::collection::vec(0.05..0.95f64, 7),
+        qd in prop::collection::vec(-0.3..0.3f64, 7),
+        dq in prop::collection::vec(-0.05..0.05f64, 7),
+    ) {
+        let model = Arc::new(jaco2());
+        let params = ImpedanceParams::jaco2_default();
+        let mut c = ImpedanceController::new(model.clone(), params.clone()).unwrap();
+        let q = within_limits(&model, &u);
+        let q_ref: Vec<f64> = q.iter().zip(&dq).map(|(a, b)| a + b).collect();
+        let qd_ref = [0.1; 7];
+        let dt = 1e-3;
+        let mut tau = vec![0.0; 7];
+        let status = c.torque_implicit(&q, &qd, &q_ref, &qd_ref, dt, &mut tau).unwrap();
+        prop_assume!(!status.is_saturated());
+        let mut d = model.data();
+        let mut m = DMatrix::zeros(7, 7);
+        model.mass_matrix(&q, &mut d, &mut m).unwrap();
+        let (mut h, mut g) = (vec![0.0; 7], vec![0.0; 7]);
+        model.nonlinear_effects(&q, &qd, &mut d, &mut h).unwrap();
+        model.gravity_torques(&q, &mut d, &mut g).unwrap();
+        let qdd = m.cholesky().unwrap().solve(&DVector::from_iterator(7, (0..7).map(|j| tau[j] - h[j])));
+        let (Gain::Diagonal(k), Gain::Diagonal(b)) = (&params.stiffness, &params.damping) else { unreachable!() };
+        for j in 0..7 {
+            let law = g[j] + k[j] * (q_ref[j] - q[j] - qd[j] * dt) + b[j] * (qd_ref[j] - qd[j] - qdd[j] * dt);
+            prop_assert!((law - tau[j]).abs() < 1e-9, "joint {j}: {law} vs {}", tau[j]);
+        }
+        let mut explicit = vec![0.0; 7];
+        c.torque(&q, &qd, &q_ref, &qd_ref, &mut explicit).unwrap();
+        c.torque_implicit(&q, &qd, &q_ref, &qd_ref, 1e-12, &mut tau).unwrap();
+        for j in 0..7 {
+            prop_assert!((explicit[j] - tau[j]).abs() < 1e-6, "joint {j}: explicit {} implicit {}", explicit[j], tau[j]);
         }
     }
 }

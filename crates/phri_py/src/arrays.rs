@@ -28,7 +28,7 @@ impl Rows<'_> {
     }
 }
 
-fn shape_str(shape: &[usize]) -> String {
+pub fn shape_str(shape: &[usize]) -> String {
     match shape {
         [one] => format!("({one},)"),
         many => format!("({})", many.iter().map(usize::to_string).collect::<Vec<_>>().join(", ")),
@@ -36,9 +36,10 @@ fn shape_str(shape: &[usize]) -> String {
 }
 
 fn values<'a>(a: &'a ArrayIn<'_>) -> Cow<'a, [f64]> {
+    // `as_slice` also succeeds for Fortran-ordered arrays, whose memory is not row-major.
     match a.as_slice() {
-        Ok(s) => Cow::Borrowed(s),
-        Err(_) => Cow::Owned(a.as_array().iter().copied().collect()),
+        Ok(s) if a.is_c_contiguous() => Cow::Borrowed(s),
+        _ => Cow::Owned(a.as_array().iter().copied().collect()),
     }
 }
 

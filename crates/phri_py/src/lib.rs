@@ -4,12 +4,31 @@
 use pyo3::prelude::*;
 
 mod arrays;
+mod deform;
 mod errors;
+mod features;
+mod impedance;
+mod interaction;
+mod learner;
+mod reference;
 mod robot;
+mod trajopt;
+mod update;
 
 #[pymodule]
 fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<robot::PyRobot>()?;
+    m.add_class::<features::PyFeatures>()?;
+    m.add_class::<update::PyWeightUpdate>()?;
+    m.add_class::<update::PyUpdateInfo>()?;
+    m.add_function(wrap_pyfunction!(update::relevance, m)?)?;
+    m.add_class::<interaction::PyInteractionDetector>()?;
+    m.add_class::<reference::PyTimedTrajectory>()?;
+    m.add_class::<impedance::PyImpedanceController>()?;
+    m.add_class::<deform::PyDeformation>()?;
+    m.add_class::<trajopt::PyTrajectoryOptimizer>()?;
+    m.add_class::<trajopt::PyTrajoptInfo>()?;
+    m.add_class::<learner::PyLearner>()?;
     Ok(())
 }

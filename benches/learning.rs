@@ -1,0 +1,204 @@
+//! Learning and control per call on the JACO2: feature counts of a plan, and one impedance step.
+//!
+//! Targets: Φ and Φ+∇Φ (`weighted_cost_gradient`) of a 31-waypoint trajectory with the study's
+//! features ["efficiency", "table", "coffee", "laptop", "human"] ≤ 20 µs, on a trajectory that
+//! really enters both keep-out circles (so the hinge features evaluate their Jacobians); one
+//! impedance step (eq. 6 with gravity compensation) ≤ 1 µs median and ≤ 10 µs worst case over 10^6
+//! steps. The full law (eq. 5) and sampling the cubic reference are reported alongside.
+//!
+//! Criterion reports averages over batches, so after the criterion groups this binary times 10^6
+//! individual impedance steps with `Instant` (timer included, a new state every step) and prints
+//! percentiles and the maximum; on a shared machine the maximum mostly measures preemption.
+//!
+//! `cargo bench -p phri_benches --bench learning`; under `cargo test --benches` each benchmark runs
+//! once and the worst-case pass uses 10^3 steps.
+
+use std::hint::black_box;
+use std::sync::Arc;
+use std::time::Instant;
+
+use criterion::{criterion_group, BenchmarkId, Criterion, Throughput};
+use phri_benches::{deg, jaco2, place_lower};
+use phri_core::features::{FeatureSet, SceneParams};
+use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
+use phri_core::reference::{Interpolation, TimedTrajectory};
+use phri_core::RobotModel;
+
+const NQ: usize = 7;
+const WAYPOINTS: usize = 31;
+const STATES: usize = 1024;
+const STUDY_FEATURES: [&str; 5] = ["efficiency", "table", "coffee", "laptop", "human"];
+
+/// pick_shelf → pick_basic → place_higher, piecewise linear in joint space over 31 waypoints: the
+/// first leg passes within 1 cm of the human centre, the second within 15 cm of the laptop centre.
+fn keepout_trajectory() -> Vec<f64> {
+    let pick_shelf = deg([210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8]);
+    let pick_basic = deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);
+    let place_higher = deg([210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4]);
+    let mut xi = Vec::with_capacity(WAYPOINTS * NQ);
+    for i in 0..WAYPOINTS {
+        let (a, b, s) = match i {
+            0..=15 => (&pick_shelf, &pick_basic, i as f64 / 15.0),
+            _ => (&pick_basic, &place_higher, (i - 15) as f64 / 15.0),
+        };
+        xi.extend((0..NQ).map(|j| a[j] + s * (b[j] - a[j])));
+    }
+    xi
+}
+
+fn study_features(model: &Arc<RobotModel>) -> FeatureSet {
+    let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
+    FeatureSet::from_names(model.clone(), link_7, &STUDY_FEATURES, &SceneParams::default()).expect("built-in features")
+}
+
+fn features(c: &mut Criterion) {
+    let model = Arc::new(jaco2());
+    let mut fs = study_features(&model);
+    let xi = keepout_trajectory();
+    let mut phi = [0.0; 5];
+    fs.phi(&xi, &mut phi).expect("valid trajectory");
+    assert!(phi[3] > 0.0 && phi[4] > 0.0, "the trajectory must enter both keep-out circles: {phi:?}");
+    let weights = [1.0, 1.0, 1.0, 10.0, 10.0]; // all non-zero: no feature is skipped
+    let mut grad = vec![0.0; xi.len()];
+    let mut jac = vec![0.0; STUDY_FEATURES.len() * xi.len()];
+
+    let mut group = c.benchmark_group("features_31_waypoints");
+    group.throughput(Throughput::Elements(WAYPOINTS as u64));
+    group.bench_function("phi", |b| b.iter(|| fs.phi(black_box(&xi), &mut phi).expect("valid")));
+    group.bench_function("phi_and_gradient", |b| {
+        b.iter(|| fs.weighted_cost_gradient(black_box(&xi), black_box(&weights), &mut grad).expect("valid"))
+    });
+    group.bench_function("phi_gradient_per_feature", |b| {
+        b.iter(|| fs.phi_gradient(black_box(&xi), &mut phi, &mut jac).expect("valid"))
+    });
+    // Where the time goes: the keep-out features sample 4 points per segment (4 forward
+    // kinematics), the others only the segment's end (1).
+    let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
+    let names = ["efficiency", "table", "coffee"];
+    let mut end_only = FeatureSet::from_names(model.clone(), link_7, &names, &SceneParams::default()).expect("features");
+    let mut phi3 = [0.0; 3];
+    group.bench_function("phi_without_keepouts", |b| b.iter(|| end_only.phi(black_box(&xi), &mut phi3).expect("valid")));
+    group.finish();
+}
+
+/// Controller states (q, q̇, q_ref, q̇_ref, q̈_ref, u_H) near place_lower, from a seeded xorshift.
+fn states(count: usize) -> Vec<[[f64; NQ]; 6]> {
+    let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        2.0 * ((state >> 11) as f64 / (1u64 << 53) as f64) - 1.0
+    };
+    let home = place_lower();
+    (0..count)
+        .map(|_| {
+            let mut s = [[0.0; NQ]; 6];
+            for j in 0..NQ {
+                s[0][j] = home[j] + 0.5 * uniform();
+                s[1][j] = 0.5 * uniform();
+                s[2][j] = s[0][j] + 0.05 * uniform();
+                s[3][j] = 0.3 * uniform();
+                s[4][j] = uniform();
+                s[5][j] = 2.0 * uniform();
+            }
+            s
+        })
+        .collect()
+}
+
+fn controllers(model: &Arc<RobotModel>) -> (ImpedanceController, ImpedanceController) {
+    let eq6 = ImpedanceController::new(model.clone(), ImpedanceParams::jaco2_default()).expect("default gains");
+    let inertia = Some(Gain::Diagonal(vec![0.5, 0.5, 0.3, 0.3, 0.1, 0.1, 0.1]));
+    let eq5 = ImpedanceController::new(model.clone(), ImpedanceParams { inertia, ..ImpedanceParams::jaco2_default() })
+        .expect("valid inertia");
+    (eq6, eq5)
+}
+
+fn control(c: &mut Criterion) {
+    let model = Arc::new(jaco2());
+    let (mut eq6, mut eq5) = controllers(&model);
+    let xs = states(STATES);
+    let mut tau = [0.0; NQ];
+    let mut group = c.benchmark_group("control_step");
+    group.throughput(Throughput::Elements(1));
+    let mut k = 0;
+    group.bench_function(BenchmarkId::new("impedance_eq6_gravity", "varying_state"), |b| {
+        b.iter(|| {
+            k = (k + 1) % STATES;
+            let [q, qd, q_ref, qd_ref, ..] = black_box(&xs[k]);
+            eq6.torque(q, qd, q_ref, qd_ref, &mut tau).expect("valid")
+        })
+    });
+    group.bench_function(BenchmarkId::new("impedance_eq5_full", "varying_state"), |b| {
+        b.iter(|| {
+            k = (k + 1) % STATES;
+            let [q, qd, q_ref, qd_ref, qdd_ref, u_h] = black_box(&xs[k]);
+            eq5.torque_full(q, qd, q_ref, qd_ref, qdd_ref, u_h, &mut tau).expect("valid")
+        })
+    });
+    let reference = TimedTrajectory::new(keepout_trajectory(), NQ, 15.0, Interpolation::Cubic).expect("valid");
+    let (mut q, mut qd, mut qdd) = ([0.0; NQ], [0.0; NQ], [0.0; NQ]);
+    let mut t = 0.0;
+    group.bench_function("reference_sample_cubic", |b| {
+        b.iter(|| {
+            t = (t + 0.001) % 15.0;
+            reference.sample(black_box(t), &mut q, &mut qd, &mut qdd);
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, features, control);
+
+/// Nanoseconds at the given quantile of sorted samples.
+fn quantile(sorted: &[u64], p: f64) -> u64 {
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+}
+
+/// Times `steps` individual impedance steps (eq. 6 with gravity compensation) and prints
+/// percentiles and the maximum.
+fn worst_case(steps: usize) {
+    let model = Arc::new(jaco2());
+    let (mut eq6, _) = controllers(&model);
+    let xs = states(STATES);
+    let mut tau = [0.0; NQ];
+    let mut samples = vec![0u64; steps];
+    for s in samples.iter_mut() {
+        let t0 = Instant::now();
+        *s = black_box(t0.elapsed()).as_nanos() as u64;
+    }
+    samples.sort_unstable();
+    let timer = quantile(&samples, 0.5);
+    for k in 0..10_000 {
+        let [q, qd, q_ref, qd_ref, ..] = &xs[k % STATES];
+        black_box(eq6.torque(q, qd, q_ref, qd_ref, &mut tau).expect("valid"));
+    }
+    for (k, s) in samples.iter_mut().enumerate() {
+        let [q, qd, q_ref, qd_ref, ..] = black_box(&xs[k % STATES]);
+        let t0 = Instant::now();
+        black_box(eq6.torque(q, qd, q_ref, qd_ref, &mut tau).expect("valid"));
+        *s = t0.elapsed().as_nanos() as u64;
+    }
+    samples.sort_unstable();
+    let us = |ns: u64| format!("{:.3} µs", ns as f64 / 1000.0);
+    println!();
+    println!("worst case: {steps} individual impedance steps (eq. 6 + gravity), a new state every step");
+    println!("  (timer included, alone {timer} ns; the maximum reflects the machine: preemption, interrupts)");
+    println!("  {:>9} {:>9} {:>9} {:>9} {:>10}", "median", "p99", "p99.9", "p99.99", "max");
+    println!(
+        "  {:>9} {:>9} {:>9} {:>9} {:>10}",
+        us(quantile(&samples, 0.5)),
+        us(quantile(&samples, 0.99)),
+        us(quantile(&samples, 0.999)),
+        us(quantile(&samples, 0.9999)),
+        us(*samples.last().expect("non-empty")),
+    );
+}
+
+fn main() {
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+    let benchmarking = std::env::args().any(|a| a == "--bench");
+    worst_case(if benchmarking { 1_000_000 } else { 1_000 });
+}

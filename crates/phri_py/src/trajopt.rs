@@ -1,0 +1,153 @@
+//! `phri.TrajectoryOptimizer`: eq. 4, ξ_R = argmin w·Φ(ξ), released from the GIL while it runs.
+
+use std::time::Duration;
+
+use numpy::{PyArray1, PyArray2, PyArrayMethods};
+use phri_core::features::FeatureSet;
+use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptInfo, TrajoptParams};
+use pyo3::prelude::*;
+
+use crate::arrays::{matrix, vector, ArrayIn};
+use crate::errors::{error, IntoPy, Kind};
+use crate::features::PyFeatures;
+
+/// What a solve did: iterations, cost evaluations, final cost and penalty, the largest clearance
+/// violation [m], whether a tolerance was met, and the wall time [s].
+#[pyclass(name = "TrajoptInfo", module = "phri._phri", frozen, get_all)]
+#[derive(Clone)]
+pub struct PyTrajoptInfo {
+    pub iterations: usize,
+    pub evaluations: usize,
+    pub cost: f64,
+    pub penalty: f64,
+    pub max_violation: f64,
+    pub converged: bool,
+    pub seconds: f64,
+}
+
+impl From<TrajoptInfo> for PyTrajoptInfo {
+    fn from(i: TrajoptInfo) -> Self {
+        PyTrajoptInfo {
+            iterations: i.iterations,
+            evaluations: i.evaluations,
+            cost: i.cost,
+            penalty: i.penalty,
+            max_violation: i.max_violation,
+            converged: i.converged,
+            seconds: i.seconds,
+        }
+    }
+}
+
+#[pymethods]
+impl PyTrajoptInfo {
+    fn __repr__(&self) -> String {
+        format!(
+            "TrajoptInfo(iterations={}, evaluations={}, cost={:.6}, penalty={:.3e}, max_violation={:.3e}, converged={}, seconds={:.3e})",
+            self.iterations, self.evaluations, self.cost, self.penalty, self.max_violation, self.converged, self.seconds
+        )
+    }
+}
+
+/// Gradient trajectory optimisation over `waypoints` rows with fixed start and goal, joint limits as
+/// bounds, `clearance` = [(frame, min_z [m]), ...] keeping frame origins above a height, and
+/// `max_step` [rad] bounding each joint's move between waypoints (velocity limit × spacing); both
+/// are quadratic penalties (weights `clearance_weight`, `step_weight`).
+#[pyclass(name = "TrajectoryOptimizer", module = "phri._phri")]
+pub struct PyTrajectoryOptimizer {
+    pub(crate) optimizer: TrajectoryOptimizer,
+    pub(crate) features: FeatureSet,
+}
+
+#[pymethods]
+impl PyTrajectoryOptimizer {
+    #[new]
+    #[pyo3(signature = (
+        features, waypoints = 31, *, clearance = None, clearance_weight = 1e3, max_iterations = 500,
+        max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-10, memory = 20, smoothing = 0.05,
+        max_step = None, step_weight = 1e3
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        features: PyRef<'_, PyFeatures>,
+        waypoints: usize,
+        clearance: Option<Vec<(String, f64)>>,
+        clearance_weight: f64,
+        max_iterations: usize,
+        max_time: Option<f64>,
+        gradient_tolerance: f64,
+        relative_tolerance: f64,
+        memory: usize,
+        smoothing: f64,
+        max_step: Option<ArrayIn<'_>>,
+        step_weight: f64,
+    ) -> PyResult<Self> {
+        let set = features.set.clone();
+        let model = set.model().clone();
+        let clearance = clearance
+            .unwrap_or_default()
+            .into_iter()
+            .map(|(frame, min_z)| Ok(Clearance { frame: model.frame_id(&frame).py_err()?, min_z, weight: clearance_weight }))
+            .collect::<PyResult<Vec<_>>>()?;
+        let max_time = match max_time {
+            None => None,
+            Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
+            Some(s) => return Err(error(Kind::InvalidParameter, format!("max_time must be a finite time > 0 s, got {s}"))),
+        };
+        let max_step = match &max_step {
+            Some(a) => vector("max_step", a, model.nq())?.into_owned(),
+            None => Vec::new(),
+        };
+        let params = TrajoptParams {
+            max_iterations,
+            max_time,
+            gradient_tolerance,
+            relative_tolerance,
+            memory,
+            smoothing,
+            clearance,
+            max_step,
+            step_weight,
+        };
+        let optimizer = TrajectoryOptimizer::new(&set, waypoints, params).py_err()?;
+        Ok(PyTrajectoryOptimizer { optimizer, features: set })
+    }
+
+    /// Number of waypoints N of the plans.
+    #[getter]
+    fn waypoints(&self) -> usize {
+        self.optimizer.waypoints()
+    }
+
+    /// Plans from `start` to `goal` [rad] for cost weights `weights` (one per feature), warm-started
+    /// from `init` (N, n) if given, else from the straight line. Returns (plan (N, n), TrajoptInfo).
+    #[pyo3(signature = (weights, start, goal, init = None))]
+    fn solve<'py>(
+        &mut self,
+        py: Python<'py>,
+        weights: ArrayIn<'py>,
+        start: ArrayIn<'py>,
+        goal: ArrayIn<'py>,
+        init: Option<ArrayIn<'py>>,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, PyTrajoptInfo)> {
+        let n = self.features.model().nq();
+        let m = self.optimizer.waypoints();
+        let weights = vector("weights", &weights, self.features.len())?.into_owned();
+        let start = vector("start", &start, n)?.into_owned();
+        let goal = vector("goal", &goal, n)?.into_owned();
+        let init = match &init {
+            Some(x) => Some(matrix("init", x, Some(m), n)?.0.into_owned()),
+            None => None,
+        };
+        let mut plan = vec![0.0; m * n];
+        let (optimizer, features) = (&mut self.optimizer, &mut self.features);
+        let info = py
+            .detach(|| optimizer.solve(features, &weights, &start, &goal, init.as_deref(), &mut plan))
+            .py_err()?;
+        Ok((PyArray1::from_vec(py, plan).reshape([m, n])?, info.into()))
+    }
+
+    fn __repr__(&self) -> String {
+        format!("TrajectoryOptimizer(waypoints={}, features={:?})", self.optimizer.waypoints(), self.features.names())
+    }
+}

@@ -1,0 +1,249 @@
+"""One simulated attempt at a task: the JACO2 tracks its plan at 1 kHz under the Rust impedance law,
+the simulated participant pushes when the cup strays, and the robot either learns (Algorithm 1) or
+only complies (the impedance baseline). Scored as the study scored it (original_system.md).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from phri._phri import (
+    Deformation,
+    Features,
+    ImpedanceController,
+    InteractionDetector,
+    Learner,
+    TimedTrajectory,
+    TrajectoryOptimizer,
+    WeightUpdate,
+)
+from phri.config import Task
+from phri.exceptions import InvalidParameterError, SimulationError
+from phri.sim.participant import Participant, ParticipantParams
+from phri.sim.world import HAND, World
+
+__all__ = ["STRATEGIES", "EpisodeConfig", "EpisodeResult", "Planner", "run_episode"]
+
+STRATEGIES = ("impedance", "learning")
+#: The tool point stays this far above the table top (the original kept a finger above z = 0) [m].
+HAND_CLEARANCE = 0.1016
+#: link_7's origin (the cup) stays this far above the table top [m].
+CUP_CLEARANCE = 0.06
+#: Plans move each joint at most this fraction of its velocity limit (between waypoints).
+VELOCITY_MARGIN = 0.5
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    """How an episode is run; the defaults are the study's."""
+
+    strategy: str = "learning"
+    #: Rate at which the robot samples the person's torque [Hz] (10 in the original, up to 1000).
+    sample_rate: float = 10.0
+    #: Gaussian noise on the joint-torque measurement, per joint [N·m].
+    sensor_noise: float = 0.1
+    #: Constant offset on the measurement [N·m] (None: none); the detector does not know it.
+    sensor_bias: tuple[float, ...] | None = None
+    #: Update rule: "all" (the paper), "max", or "confidence".
+    rule: str = "all"
+    #: Time-series log rate [Hz].
+    log_rate: float = 100.0
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise InvalidParameterError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        if not 0 < self.sample_rate <= 1000:
+            raise InvalidParameterError(f"sample_rate must be in (0, 1000] Hz, got {self.sample_rate}")
+        if not 0 < self.log_rate <= 1000:
+            raise InvalidParameterError(f"log_rate must be in (0, 1000] Hz, got {self.log_rate}")
+        if not self.sensor_noise >= 0:
+            raise InvalidParameterError(f"sensor_noise must be >= 0 N·m, got {self.sensor_noise}")
+
+
+@dataclass
+class EpisodeResult:
+    """Metrics of one episode as the study scored them, and where its log is."""
+
+    task: str
+    strategy: str
+    #: Σ over interaction samples of Σ_j |u_H,j| [N·m].
+    effort: float
+    #: Number of interaction samples × sample period [s].
+    interaction_time: float
+    #: Unweighted task-feature count of the executed path (sampled at the plan's waypoint times).
+    cost: float
+    #: The same count for the desired behaviour (the plan for the true weights).
+    desired_cost: float
+    initial_weights: np.ndarray
+    final_weights: np.ndarray
+    #: Largest distance of the hand from its reference while nobody touches it, at the log rate [m]
+    #: (includes the spring-back after a push; see tests for tracking with no participant at all).
+    tracking_error: float
+    wall_time: float
+    log: Path | None = None
+    #: Executed and desired link_7 paths (N, 3) for plots.
+    executed_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    desired_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def row(self) -> dict[str, object]:
+        """A flat record for tables."""
+        return {
+            "task": self.task,
+            "strategy": self.strategy,
+            "effort": self.effort,
+            "interaction_time": self.interaction_time,
+            "cost": self.cost,
+            "desired_cost": self.desired_cost,
+            "final_weight": float(self.final_weights[-1]) if self.final_weights.size else float("nan"),
+            "tracking_error": self.tracking_error,
+            "wall_time": self.wall_time,
+        }
+
+
+class Planner:
+    """The task's features and optimiser, and the plans for its initial and true weights."""
+
+    def __init__(self, task: Task, world: World) -> None:
+        s = task.scene
+        self.task = task
+        self.features = Features(
+            world.model, task.feature_names, laptop_center=s.laptop_center, human_center=s.human_center,
+            radius=s.radius, samples=s.samples,
+        )  # fmt: skip
+        clearance = [(HAND, s.table_height + HAND_CLEARANCE), ("j2s7s300_link_7", s.table_height + CUP_CLEARANCE)]
+        # Joint speeds within the arm's limits, with a margin for tracking.
+        spacing = task.duration / (task.waypoints - 1)
+        max_step = VELOCITY_MARGIN * world.model.velocity_limits * spacing
+        self.optimizer = TrajectoryOptimizer(self.features, task.waypoints, clearance=clearance, max_step=max_step)
+        world.model.check_limits(task.start)
+        world.model.check_limits(task.goal)
+        self.desired, _ = self.optimizer.solve(task.vector("true"), task.start, task.goal)
+        self.desired_cost = float(self.features.phi(self.desired)[task.task_index])
+
+
+def _write_log(path: Path, arrays: dict[str, np.ndarray]) -> Path:
+    """Writes a compressed .npz without ever leaving a half-written file under `path`."""
+    if path.exists():
+        raise FileExistsError(f"{path} exists; phri never overwrites a log")
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    os.replace(tmp, path)
+    return path
+
+
+def run_episode(
+    task: Task,
+    world: World,
+    participant_params: ParticipantParams,
+    config: EpisodeConfig | None = None,
+    *,
+    seed: int = 0,
+    planner: Planner | None = None,
+    log_path: Path | None = None,
+) -> EpisodeResult:
+    """Simulates one attempt at `task` for `task.duration` seconds at the world's time step."""
+    config = config or EpisodeConfig()
+    began = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    planner = planner or Planner(task, world)
+    model = world.model
+    update = WeightUpdate(
+        task.vector("step"), task.vector("lower"), task.vector("upper"),
+        learned=[f.learned for f in task.features], rule=config.rule,
+    )  # fmt: skip
+    learner = Learner(
+        planner.features, Deformation(), update, InteractionDetector(), planner.optimizer,
+        task.vector("initial"), task.start, task.goal,
+        duration=task.duration, sample_period=1.0 / config.sample_rate,
+        learning=config.strategy == "learning",
+    )  # fmt: skip
+    initial_weights = learner.weights
+    controller = ImpedanceController(model)
+    desired = TimedTrajectory(planner.desired, task.duration)
+    person = Participant(participant_params, desired, task.task_feature, model, rng)
+    bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
+
+    dt = world.params.timestep
+    steps = int(round(task.duration / dt)) + 1
+    sample_every = max(1, int(round(1.0 / (config.sample_rate * dt))))
+    log_every = max(1, int(round(1.0 / (config.log_rate * dt))))
+    rows = (steps + log_every - 1) // log_every
+    log = {k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")}
+    log_t = np.zeros(rows)
+    world.reset(task.start)
+    measured = np.zeros(model.nq)
+    tau = np.zeros(model.nq)
+    tracking_error = 0.0
+    error: Exception | None = None
+    row = 0
+    try:
+        for k in range(steps):
+            t = k * dt
+            q, qd = world.state()
+            push = person.wrench(t, q)
+            if k % sample_every == 0:
+                measured = bias + rng.normal(0.0, config.sensor_noise, model.nq) if config.sensor_noise else bias.copy()
+                if push is not None:
+                    measured += model.jacobian(HAND, q).T @ np.concatenate(push)
+                learner.observe(t, measured)
+            q_ref, qd_ref, _ = learner.reference(t)
+            controller.torque_implicit(q, qd, q_ref, qd_ref, dt, out=tau)
+            if k % log_every == 0:
+                log_t[row] = t
+                for key, v in (("q", q), ("qd", qd), ("q_ref", q_ref), ("tau", tau), ("u_h", measured)):
+                    log[key][row] = v
+                row += 1
+                if push is None:
+                    gap = model.frame_pose(HAND, q)[:3, 3] - model.frame_pose(HAND, q_ref)[:3, 3]
+                    tracking_error = max(tracking_error, float(np.linalg.norm(gap)))
+            if push is None:
+                world.step(tau)
+            else:
+                world.step(tau, push[0], push[1])
+    except SimulationError as e:
+        error = e
+    interactions = learner.interactions()
+    u = np.array([i["u_h"] for i in interactions]).reshape(-1, model.nq)
+    plans = learner.plans()
+    # The executed path at the plan's waypoint times, scored with the same features.
+    n_wp = task.waypoints
+    idx = np.minimum(np.round(np.linspace(0, task.duration, n_wp) / (dt * log_every)).astype(int), max(row - 1, 0))
+    executed = log["q"][idx]
+    phi = planner.features.phi(executed)
+    frame = "j2s7s300_link_7"
+    result = EpisodeResult(
+        task=task.name,
+        strategy=config.strategy,
+        effort=float(np.abs(u).sum()),
+        interaction_time=len(interactions) / config.sample_rate,
+        cost=float(phi[task.task_index]),
+        desired_cost=planner.desired_cost,
+        initial_weights=initial_weights,
+        final_weights=learner.weights,
+        tracking_error=tracking_error,
+        wall_time=time.perf_counter() - began,
+        executed_path=model.frame_pose(frame, executed)[:, :3, 3],
+        desired_path=model.frame_pose(frame, planner.desired)[:, :3, 3],
+    )
+    if log_path is not None:
+        weights_t = np.array([0.0] + [i["t"] for i in interactions])
+        weights = np.array([initial_weights] + [i["weights"] for i in interactions])
+        result.log = _write_log(
+            Path(log_path),
+            {
+                "t": log_t[:row], **{k: v[:row] for k, v in log.items()},
+                "interaction_t": np.array([i["t"] for i in interactions]), "interaction_u_h": u,
+                "weights_t": weights_t, "weights": weights,
+                "plan_t": np.array([p[0] for p in plans]), "plans": np.array([p[1] for p in plans]),
+                "desired": planner.desired, "feature_names": np.array(task.feature_names),
+            },
+        )  # fmt: skip
+    if error is not None:
+        raise SimulationError(f"{task.name}/{config.strategy}: {error} (log so far: {result.log})") from error
+    return result

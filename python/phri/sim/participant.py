@@ -1,0 +1,123 @@
+"""A simulated study participant: knows how the task should be done (the plan for the true weights),
+knows nothing of the robot's learner, watches the cup, and pushes the hand when it strays.
+
+Behaviour, every control tick:
+
+- The task-relevant error is the cup's position error from the desired path at the same time (tasks
+  table, laptop, human) or the excess tilt of the cup over the desired tilt (coffee).
+- When the error has stayed above ``tolerance`` for ``delay`` seconds, the participant grabs the hand
+  and applies a corrective wrench: force ``stiffness · error`` toward the desired position (or torque
+  ``rotational_stiffness · tilt`` righting the cup), saturated at ``max_force`` / ``max_torque``, plus
+  Gaussian noise of standard deviation ``noise`` (per axis, in N or N·m).
+- They let go when the error falls below ``release · tolerance`` (hysteresis).
+
+Per-participant parameters are drawn with :meth:`ParticipantParams.draw` from the documented uniform
+distributions below, from a seeded generator; the same participant drives both strategies.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from phri._phri import Robot, TimedTrajectory
+
+__all__ = ["DISTRIBUTIONS", "Participant", "ParticipantParams"]
+
+#: Uniform ranges (low, high) each parameter is drawn from.
+DISTRIBUTIONS: dict[str, tuple[float, float]] = {
+    "stiffness": (250.0, 450.0),  # N/m
+    "rotational_stiffness": (8.0, 15.0),  # N·m/rad
+    "tolerance": (0.03, 0.05),  # m
+    "tilt_tolerance": (0.15, 0.25),  # rad
+    "delay": (0.2, 0.4),  # s
+    "max_force": (25.0, 35.0),  # N
+    "max_torque": (3.0, 5.0),  # N·m
+    "noise": (0.5, 1.5),  # N (and N·m for torques, scaled by 0.1)
+}
+
+
+@dataclass(frozen=True)
+class ParticipantParams:
+    """How one simulated person corrects the robot."""
+
+    stiffness: float = 350.0
+    rotational_stiffness: float = 12.0
+    tolerance: float = 0.04
+    tilt_tolerance: float = 0.2
+    delay: float = 0.3
+    max_force: float = 30.0
+    max_torque: float = 4.0
+    noise: float = 1.0
+    release: float = 0.4
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator) -> ParticipantParams:
+        """One participant from :data:`DISTRIBUTIONS` (the draw order is fixed, so seeds reproduce)."""
+        return cls(**{k: float(rng.uniform(lo, hi)) for k, (lo, hi) in DISTRIBUTIONS.items()})
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def cup_tilt(rotation: np.ndarray) -> float:
+    """Angle between the cup axis (link_7's x axis) and vertical [rad]."""
+    return float(np.arccos(np.clip(rotation[2, 0], -1.0, 1.0)))
+
+
+class Participant:
+    """Watches the robot and pushes; `wrench(t, q)` returns (force [N], torque [N·m]) at the hand."""
+
+    def __init__(
+        self,
+        params: ParticipantParams,
+        desired: TimedTrajectory,
+        task_feature: str,
+        robot: Robot,
+        rng: np.random.Generator,
+        frame: str = "j2s7s300_link_7",
+    ) -> None:
+        self.params, self.desired, self.robot, self.rng, self.frame = params, desired, robot, rng, frame
+        self.rotational = task_feature in ("coffee", "coffee_dot")
+        self.over_since: float | None = None
+        self.pushing = False
+
+    def error(self, t: float, q: np.ndarray) -> tuple[float, np.ndarray]:
+        """(task-relevant error magnitude [m or rad], corrective direction), world frame."""
+        pose = self.robot.frame_pose(self.frame, q)
+        q_d, _, _ = self.desired.sample(t)
+        want = self.robot.frame_pose(self.frame, q_d)
+        if self.rotational:
+            # Righting the cup: rotate its axis x towards vertical, about x × ẑ.
+            excess = cup_tilt(pose) - cup_tilt(want)
+            axis = np.cross(pose[:3, 0], np.array([0.0, 0.0, 1.0]))
+            norm = float(np.linalg.norm(axis))
+            return max(excess, 0.0), (axis / norm if norm > 1e-9 else np.zeros(3))
+        e = want[:3, 3] - pose[:3, 3]
+        size = float(np.linalg.norm(e))
+        return size, (e / size if size > 0 else e)
+
+    def wrench(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The push at time `t` [s] for joint positions `q`, or None when not touching the robot."""
+        p = self.params
+        size, direction = self.error(t, q)
+        tolerance = p.tilt_tolerance if self.rotational else p.tolerance
+        if self.pushing:
+            if size < p.release * tolerance:
+                self.pushing, self.over_since = False, None
+        elif size > tolerance:
+            if self.over_since is None:
+                self.over_since = t
+            if t - self.over_since >= p.delay:
+                self.pushing = True
+        else:
+            self.over_since = None
+        if not self.pushing:
+            return None
+        if self.rotational:
+            torque = direction * min(p.rotational_stiffness * size, p.max_torque)
+            torque = torque + self.rng.normal(0.0, 0.1 * p.noise, 3)
+            return np.zeros(3), torque
+        force = direction * min(p.stiffness * size, p.max_force) + self.rng.normal(0.0, p.noise, 3)
+        return force, np.zeros(3)

@@ -1,0 +1,95 @@
+"""Shared fixtures: the shipped JACO2 in phri and in PyBullet, a seeded generator, random configurations."""
+
+from __future__ import annotations
+
+import importlib.resources
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import phri
+import pybullet as p
+import pytest
+
+SEED = 20171113  # fixed: every run draws the same configurations
+GRAVITY = (0.0, 0.0, -9.81)
+
+
+def jaco2_urdf_path() -> Path:
+    """The JACO2 description shipped inside the phri package."""
+    resource = importlib.resources.files("phri").joinpath("robots/jaco2/j2s7s300.urdf")
+    path = Path(str(resource))
+    assert path.is_file(), f"shipped URDF not found at {path}"
+    return path
+
+
+def random_configurations(
+    lower: np.ndarray, upper: np.ndarray, rng: np.random.Generator, n: int
+) -> np.ndarray:
+    """(n, nq) joint positions [rad] uniform within the limits; continuous joints uniform in [0, 2π)."""
+    lower = np.asarray(lower, dtype=float)
+    upper = np.asarray(upper, dtype=float)
+    limited = np.isfinite(lower) & np.isfinite(upper)
+    lo = np.where(limited, lower, 0.0)
+    hi = np.where(limited, upper, 2.0 * np.pi)
+    return lo + (hi - lo) * rng.random((n, lower.size))
+
+
+class PyBulletRobot(NamedTuple):
+    """A robot loaded in its own PyBullet DIRECT client; unpacks as (client, body, links, joints)."""
+
+    client: int
+    body: int
+    links: dict[str, int]  # URDF link name -> PyBullet link index (-1 for the base link)
+    joints: list[int]  # indices of the movable joints, base to tip
+
+
+@pytest.fixture
+def robot() -> phri.Robot:
+    return phri.Robot.jaco2()
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(SEED)
+
+
+@pytest.fixture
+def draw_q(robot: phri.Robot, rng: np.random.Generator) -> Callable[[int], np.ndarray]:
+    """`draw_q(n)`: (n, 7) random JACO2 configurations within limits, from the seeded `rng`."""
+    return lambda n: random_configurations(robot.lower_limits, robot.upper_limits, rng, n)
+
+
+@pytest.fixture
+def load_pybullet() -> Iterator[Callable[[str | Path], PyBulletRobot]]:
+    """`load_pybullet(path)`: a URDF in a fresh DIRECT client (fixed base, inertia from the file,
+    gravity 9.81 m/s² along −z). Every client opened is disconnected at teardown."""
+    clients: list[int] = []
+
+    def load(path: str | Path) -> PyBulletRobot:
+        client = p.connect(p.DIRECT)
+        clients.append(client)
+        body = p.loadURDF(
+            str(path), useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client
+        )
+        p.setGravity(*GRAVITY, physicsClientId=client)
+        base_name = p.getBodyInfo(body, physicsClientId=client)[0].decode()
+        links = {base_name: -1}
+        joints = []
+        for j in range(p.getNumJoints(body, physicsClientId=client)):
+            info = p.getJointInfo(body, j, physicsClientId=client)
+            links[info[12].decode()] = j
+            if info[2] != p.JOINT_FIXED:
+                joints.append(j)
+        return PyBulletRobot(client, body, links, joints)
+
+    yield load
+    for client in clients:
+        p.disconnect(physicsClientId=client)
+
+
+@pytest.fixture
+def pybullet_jaco2(load_pybullet: Callable[[str | Path], PyBulletRobot]) -> PyBulletRobot:
+    """The shipped JACO2 URDF in PyBullet: (client id, body id, {link name: link index}, movable joints)."""
+    return load_pybullet(jaco2_urdf_path())

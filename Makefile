@@ -17,7 +17,7 @@ $(PY):
 $(DEPS): pyproject.toml | $(PY)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet "maturin>=1.7,<2" "numpy>=1.24" "pytest>=8" "pybullet>=3.2.6" "scipy>=1.11" \
-		"ruff>=0.6" "mypy>=1.10"
+		"matplotlib>=3.7" "ruff>=0.6" "mypy>=1.10"
 	touch $@
 
 $(BUILT): $(DEPS) $(CARGO_SOURCES) pyproject.toml
@@ -47,7 +47,7 @@ lint: $(BUILT)  ## rustfmt, clippy, ruff, and the stub check
 bench:  ## Criterion benchmarks (median and worst case)
 	cargo bench -p phri_benches
 
-bench-peers: $(BUILT)  ## Time phri against pinocchio, PyBullet and scipy side by side
+bench-peers: $(BUILT)  ## Time phri against pinocchio and PyBullet side by side
 	$(PIP) install --quiet "pin>=3"
 	$(PY) benches/peers.py
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -86,6 +87,7 @@ class EpisodeResult:
     tracking_error: float
     wall_time: float
     log: Path | None = None
+    frames: list[Path] = field(default_factory=list)
     #: Executed and desired link_7 paths (N, 3) for plots.
     executed_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     desired_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -146,8 +148,13 @@ def run_episode(
     seed: int = 0,
     planner: Planner | None = None,
     log_path: Path | None = None,
+    frame_times: Sequence[float] = (),
+    frame_prefix: Path | None = None,
 ) -> EpisodeResult:
-    """Simulates one attempt at `task` for `task.duration` seconds at the world's time step."""
+    """Simulates one attempt at `task` for `task.duration` seconds at the world's time step.
+
+    `log_path` (.npz) receives the compressed time series; `frame_times` [s] are rendered to
+    ``{frame_prefix}_t{t:05.2f}.png`` with PyBullet's software renderer."""
     config = config or EpisodeConfig()
     began = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -166,7 +173,7 @@ def run_episode(
     initial_weights = learner.weights
     controller = ImpedanceController(model)
     desired = TimedTrajectory(planner.desired, task.duration)
-    person = Participant(participant_params, desired, task.task_feature, model, rng)
+    person = Participant(participant_params, desired, task.task_feature, model, rng, dt=world.params.timestep)
     bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
 
     dt = world.params.timestep
@@ -182,6 +189,8 @@ def run_episode(
     tracking_error = 0.0
     error: Exception | None = None
     row = 0
+    frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
+    frames: list[Path] = []
     try:
         for k in range(steps):
             t = k * dt
@@ -202,6 +211,8 @@ def run_episode(
                 if push is None:
                     gap = model.frame_pose(HAND, q)[:3, 3] - model.frame_pose(HAND, q_ref)[:3, 3]
                     tracking_error = max(tracking_error, float(np.linalg.norm(gap)))
+            if k in frame_ticks and frame_prefix is not None:
+                frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
             if push is None:
                 world.step(tau)
             else:
@@ -230,6 +241,7 @@ def run_episode(
         wall_time=time.perf_counter() - began,
         executed_path=model.frame_pose(frame, executed)[:, :3, 3],
         desired_path=model.frame_pose(frame, planner.desired)[:, :3, 3],
+        frames=frames,
     )
     if log_path is not None:
         weights_t = np.array([0.0] + [i["t"] for i in interactions])

@@ -10,6 +10,7 @@ Behaviour, every control tick:
   ``rotational_stiffness · tilt`` righting the cup), saturated at ``max_force`` / ``max_torque``, plus
   Gaussian noise of standard deviation ``noise`` (per axis, in N or N·m).
 - They let go when the error falls below ``release · tolerance`` (hysteresis).
+- They re-judge at ``rate`` (100 Hz) and hold the push in between.
 
 Per-participant parameters are drawn with :meth:`ParticipantParams.draw` from the documented uniform
 distributions below, from a seeded generator; the same participant drives both strategies.
@@ -17,6 +18,7 @@ distributions below, from a seeded generator; the same participant drives both s
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -51,6 +53,7 @@ class ParticipantParams:
     max_torque: float = 4.0
     noise: float = 1.0
     release: float = 0.4
+    rate: float = 100.0  # Hz at which the person re-judges the error and updates their push
 
     @classmethod
     def draw(cls, rng: np.random.Generator) -> ParticipantParams:
@@ -63,11 +66,15 @@ class ParticipantParams:
 
 def cup_tilt(rotation: np.ndarray) -> float:
     """Angle between the cup axis (link_7's x axis) and vertical [rad]."""
-    return float(np.arccos(np.clip(rotation[2, 0], -1.0, 1.0)))
+    return math.acos(min(1.0, max(-1.0, float(rotation[2, 0]))))
 
 
 class Participant:
-    """Watches the robot and pushes; `wrench(t, q)` returns (force [N], torque [N·m]) at the hand."""
+    """Watches the robot and pushes; `wrench(t, q)` returns (force [N], torque [N·m]) at the hand.
+
+    The desired cup pose is precomputed on the control grid `dt` [s] (one batched call), so a tick
+    costs one forward kinematics of the robot's actual configuration.
+    """
 
     def __init__(
         self,
@@ -76,30 +83,44 @@ class Participant:
         task_feature: str,
         robot: Robot,
         rng: np.random.Generator,
+        dt: float = 1e-3,
         frame: str = "j2s7s300_link_7",
     ) -> None:
-        self.params, self.desired, self.robot, self.rng, self.frame = params, desired, robot, rng, frame
+        self.params, self.robot, self.rng, self.frame, self.dt = params, robot, rng, frame, dt
         self.rotational = task_feature in ("coffee", "coffee_dot")
+        times = np.arange(0.0, desired.duration + dt / 2, dt)
+        poses = robot.frame_pose(frame, desired.sample_many(times)[0])
+        self.desired_position = poses[:, :3, 3].copy()
+        self.desired_tilt = np.arccos(np.clip(poses[:, 2, 0], -1.0, 1.0))
         self.over_since: float | None = None
         self.pushing = False
+        self.next_look = 0.0
+        self.held: tuple[np.ndarray, np.ndarray] | None = None
 
     def error(self, t: float, q: np.ndarray) -> tuple[float, np.ndarray]:
         """(task-relevant error magnitude [m or rad], corrective direction), world frame."""
+        k = min(max(int(round(t / self.dt)), 0), len(self.desired_tilt) - 1)
         pose = self.robot.frame_pose(self.frame, q)
-        q_d, _, _ = self.desired.sample(t)
-        want = self.robot.frame_pose(self.frame, q_d)
         if self.rotational:
-            # Righting the cup: rotate its axis x towards vertical, about x × ẑ.
-            excess = cup_tilt(pose) - cup_tilt(want)
-            axis = np.cross(pose[:3, 0], np.array([0.0, 0.0, 1.0]))
-            norm = float(np.linalg.norm(axis))
+            # Righting the cup: rotate its axis x towards vertical, about x × ẑ = (x_y, −x_x, 0).
+            excess = cup_tilt(pose) - float(self.desired_tilt[k])
+            axis = np.array([pose[1, 0], -pose[0, 0], 0.0])
+            norm = math.hypot(axis[0], axis[1])
             return max(excess, 0.0), (axis / norm if norm > 1e-9 else np.zeros(3))
-        e = want[:3, 3] - pose[:3, 3]
-        size = float(np.linalg.norm(e))
+        e = self.desired_position[k] - pose[:3, 3]
+        size = math.sqrt(float(e @ e))
         return size, (e / size if size > 0 else e)
-
     def wrench(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The push at time `t` [s] for joint positions `q`, or None when not touching the robot."""
+        """The push at time `t` [s] for joint positions `q`, or None when not touching the robot.
+
+        A person re-judges what they see at ``params.rate`` Hz and holds their push in between."""
+        if t < self.next_look:
+            return self.held
+        self.next_look = t + 1.0 / self.params.rate - 1e-9
+        self.held = self._judge(t, q)
+        return self.held
+
+    def _judge(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         p = self.params
         size, direction = self.error(t, q)
         tolerance = p.tilt_tolerance if self.rotational else p.tolerance

@@ -7,6 +7,9 @@ mode unless ``gui=True``. Pictures come from PyBullet's software renderer (no di
 
 from __future__ import annotations
 
+import math
+import tempfile
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -40,6 +43,20 @@ def _asset(*parts: str) -> str:
     return str(resources.files("phri").joinpath("robots", *parts))
 
 
+def arm_with_cup_urdf() -> str:
+    """The shipped arm with the shipped cup fixed at its cup frame, as one URDF document."""
+    arm = ET.parse(_asset("jaco2", "j2s7s300.urdf")).getroot()
+    cup = ET.parse(_asset("jaco2", "cup.urdf")).getroot()
+    for material in cup.findall("material"):
+        arm.insert(0, material)
+    arm.extend(cup.findall("link"))
+    joint = ET.SubElement(arm, "joint", name="cup_grasp", type="fixed")
+    ET.SubElement(joint, "parent", link=CUP_FRAME)
+    ET.SubElement(joint, "child", link="cup")
+    ET.SubElement(joint, "origin", xyz="0 0 0", rpy="0 0 0")
+    return ET.tostring(arm, encoding="unicode")
+
+
 class World:
     """One PyBullet client with the scene; reuse it across episodes with :meth:`reset`."""
 
@@ -53,12 +70,14 @@ class World:
         c = self.client
         p.setTimeStep(self.params.timestep, physicsClientId=c)
         p.setGravity(0.0, 0.0, -self.params.gravity, physicsClientId=c)
-        self.robot_id = p.loadURDF(
-            _asset("jaco2", "j2s7s300.urdf"),
-            useFixedBase=True,
-            flags=p.URDF_USE_INERTIA_FROM_FILE | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT,
-            physicsClientId=c,
-        )
+        # The arm and its cup as one multibody (a rigid grasp): no constraint for the solver to chase.
+        # Self-collision stays off: adjacent primitives overlap at the joints by design.
+        with tempfile.TemporaryDirectory() as folder:
+            urdf = Path(folder) / "j2s7s300_with_cup.urdf"
+            urdf.write_text(arm_with_cup_urdf(), encoding="utf-8")
+            self.robot_id = p.loadURDF(
+                str(urdf), useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c
+            )
         self.links = {p.getBodyInfo(self.robot_id, physicsClientId=c)[0].decode(): -1}
         self.joints: list[int] = []
         for j in range(p.getNumJoints(self.robot_id, physicsClientId=c)):
@@ -99,34 +118,21 @@ class World:
             p.GEOM_CYLINDER, radius=0.15, length=1.7, rgbaColor=[0.85, 0.6, 0.45, 0.35], physicsClientId=c
         )
         self.human_id = p.createMultiBody(0, -1, vis, basePosition=[hx, hy, top + 0.85], physicsClientId=c)
-        # The cup, held rigidly at the cup frame.
-        self.cup_id = p.loadURDF(_asset("jaco2", "cup.urdf"), physicsClientId=c)
-        self.cup_constraint = p.createConstraint(
-            self.robot_id, self.links[CUP_FRAME], self.cup_id, -1, p.JOINT_FIXED,
-            [0, 0, 0], [0, 0, 0], [0, 0, 0], physicsClientId=c,
-        )  # fmt: skip
-        p.changeConstraint(self.cup_constraint, maxForce=1e4, physicsClientId=c)
-        # The cup sits inside the hand's finger envelope: it must not collide with the arm.
-        for link in self.links.values():
-            p.setCollisionFilterPair(self.robot_id, self.cup_id, link, -1, 0, physicsClientId=c)
 
     def reset(self, q: np.ndarray) -> None:
         """Puts the arm at rest at `q` [rad] and the cup in the hand."""
         p, c = self.p, self.client
         for j, v in zip(self.joints, np.asarray(q, dtype=float), strict=True):
             p.resetJointState(self.robot_id, j, float(v), 0.0, physicsClientId=c)
-        state = p.getLinkState(self.robot_id, self.links[CUP_FRAME], computeForwardKinematics=True, physicsClientId=c)
-        p.resetBasePositionAndOrientation(self.cup_id, state[4], state[5], physicsClientId=c)
-        p.resetBaseVelocity(self.cup_id, [0, 0, 0], [0, 0, 0], physicsClientId=c)
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions [rad] and velocities [rad/s]."""
         states = self.p.getJointStates(self.robot_id, self.joints, physicsClientId=self.client)
-        q = np.fromiter((s[0] for s in states), float, len(states))
-        qd = np.fromiter((s[1] for s in states), float, len(states))
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+        q = [s[0] for s in states]
+        qd = [s[1] for s in states]
+        if not math.isfinite(sum(q) + sum(qd)):
             raise SimulationError(f"the simulator returned a non-finite joint state q={q}, qd={qd}")
-        return q, qd
+        return np.array(q), np.array(qd)
 
     def hand_position(self) -> np.ndarray:
         """World position of the tool point (where the person pushes) [m]."""

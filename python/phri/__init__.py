@@ -7,7 +7,6 @@ Physical Human Interaction" (CoRL 2017), with a Rust core. Units are SI: m, rad,
 from __future__ import annotations
 
 from phri import exceptions
-from phri.config import Task, load_task, task_names
 from phri._phri import (
     Deformation,
     Features,
@@ -23,6 +22,7 @@ from phri._phri import (
     __version__,
     relevance,
 )
+from phri.config import Task, load_task, task_names
 
 __all__ = [
     "Deformation",

@@ -6,11 +6,28 @@ from typing import Any, ClassVar, Literal, final
 import numpy as np
 import numpy.typing as npt
 
+__all__ = [
+    "Deformation",
+    "Features",
+    "ImpedanceController",
+    "InteractionDetector",
+    "Learner",
+    "Robot",
+    "TimedTrajectory",
+    "TrajectoryOptimizer",
+    "TrajoptInfo",
+    "UpdateInfo",
+    "WeightUpdate",
+    "__version__",
+    "relevance",
+]
+
 __version__: str
 
 _Array = npt.ArrayLike
 _F64 = npt.NDArray[np.float64]
 
+@final
 class Robot:
     """A serial-chain robot (kinematics and rigid-body dynamics), read from a URDF."""
 

@@ -28,7 +28,9 @@ def _tasks(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="phri", description="Learning robot objectives from physical human interaction.")
+    parser = argparse.ArgumentParser(
+        prog="phri", description="Learning robot objectives from physical human interaction."
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the four study tasks, both strategies, one simulated participant")
     demo.add_argument("--out", default="out/demo", help="output folder (a fresh one is made if it exists)")

@@ -122,7 +122,9 @@ class _Reader:
     def vector(self, key: str, length: int, default: Any = ...) -> np.ndarray:
         v = self.get(key, default)
         ok = isinstance(v, list | tuple) and len(v) == length
-        ok = ok and all(isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+        ok = ok and all(
+            isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in v
+        )
         if not ok:
             raise self.fail(key, f"a list of {length} finite numbers", v)
         return np.asarray(v, dtype=float)
@@ -144,7 +146,9 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     specs = []
     for name, table in feats.items():
         if name not in KNOWN_FEATURES:
-            raise ConfigError(f"{source}: key 'features.{name}': unknown feature; known: {', '.join(KNOWN_FEATURES)}")
+            raise ConfigError(
+                f"{source}: key 'features.{name}': unknown feature; known: {', '.join(KNOWN_FEATURES)}"
+            )
         if not isinstance(table, dict):
             raise r.fail(f"features.{name}", "a table", table)
         f = _Reader(source, table, f"features.{name}.")

@@ -50,8 +50,8 @@ def _plot(folder: Path, task: str, results: dict[str, EpisodeResult], true_weigh
     # Fig. 1: the person's effort over time.
     fig, ax = plt.subplots(figsize=(6.4, 3.2))
     for strategy, r in results.items():
-        log = np.load(r.log)
-        ax.plot(log["t"], np.abs(log["u_h"]).sum(axis=1), color=colors[strategy], label=strategy, lw=1)
+        with np.load(r.log) as log:
+            ax.plot(log["t"], np.abs(log["u_h"]).sum(axis=1), color=colors[strategy], label=strategy, lw=1)
     ax.set(xlabel="time [s]", ylabel="measured |u_H|₁ [N·m]", title=f"{task}: human torque over time")
     ax.legend()
     fig.tight_layout()
@@ -77,10 +77,10 @@ def _plot(folder: Path, task: str, results: dict[str, EpisodeResult], true_weigh
     plt.close(fig)
     # The learned weight over time.
     r = results["learning"]
-    log = np.load(r.log)
+    with np.load(r.log) as log:
+        wt = np.append(log["weights_t"], 15.0)
+        w = np.vstack([log["weights"], log["weights"][-1:]])[:, -1]
     fig, ax = plt.subplots(figsize=(6.4, 3.0))
-    wt = np.append(log["weights_t"], 15.0)
-    w = np.vstack([log["weights"], log["weights"][-1:]])[:, -1]
     ax.step(wt, w, where="post", color=colors["learning"], label="learned")
     ax.axhline(true_weight, color="k", ls="--", label="true")
     ax.set(xlabel="time [s]", ylabel=f"weight of '{task}'", title=f"{task}: weight over time")
@@ -92,7 +92,9 @@ def _plot(folder: Path, task: str, results: dict[str, EpisodeResult], true_weigh
     return written
 
 
-def run_demo(out: Path = Path("out/demo"), seed: int = 7, gui: bool = False, frames: bool = True) -> DemoResult:
+def run_demo(
+    out: Path = Path("out/demo"), seed: int = 7, gui: bool = False, frames: bool = True
+) -> DemoResult:
     """Runs the demo into a fresh folder next to (or at) `out` and returns what it did."""
     began = time.perf_counter()
     folder = fresh_folder(Path(out))
@@ -100,7 +102,10 @@ def run_demo(out: Path = Path("out/demo"), seed: int = 7, gui: bool = False, fra
     (folder / "frames").mkdir()
     participant = ParticipantParams.draw(np.random.default_rng(seed))
     results: list[EpisodeResult] = []
-    header = f"{'task':<8} {'strategy':<10} {'effort':>9} {'time':>6} {'cost':>8} {'desired':>8} {'weight':>7} {'wall':>6}"
+    header = (
+        f"{'task':<8} {'strategy':<10} {'effort':>9} {'time':>6} {'cost':>8} {'desired':>8} {'weight':>7} "
+        f"{'wall':>6}"
+    )
     print(f"phri demo: one simulated participant ({participant}), output in {folder}")
     print(header)
     print("-" * len(header))
@@ -114,7 +119,8 @@ def run_demo(out: Path = Path("out/demo"), seed: int = 7, gui: bool = False, fra
                 per_task[strategy] = r
                 results.append(r)
                 print(
-                    f"{task_name:<8} {strategy:<10} {r.effort:>9.1f} {r.interaction_time:>6.1f} {r.cost:>8.3f} "
+                    f"{task_name:<8} {strategy:<10} {r.effort:>9.1f} {r.interaction_time:>6.1f} "
+                    f"{r.cost:>8.3f} "
                     f"{r.desired_cost:>8.3f} {r.final_weights[task.task_index]:>7.3f} {r.wall_time:>6.2f}"
                 )
             _plot(folder, task_name, per_task, float(task.vector("true")[task.task_index]))
@@ -123,7 +129,10 @@ def run_demo(out: Path = Path("out/demo"), seed: int = 7, gui: bool = False, fra
         writer.writeheader()
         writer.writerows(r.row() for r in results)
     seconds = time.perf_counter() - began
-    print(f"\nwrote {folder}/summary.csv, figures force_*.png path_*.png weights_*.png, frames/, logs/ in {seconds:.1f} s")
+    print(
+        f"\nwrote {folder}/summary.csv, figures force_*.png path_*.png weights_*.png, frames/, logs/ "
+        f"in {seconds:.1f} s"
+    )
     return DemoResult(folder, results, seconds)
 
 

@@ -231,7 +231,7 @@ impl ImpedanceController {
         }
         self.params.stiffness.apply(&self.error, &mut self.scratch); // K·e_pred
         self.params.damping.apply(&self.error_dot, &mut self.scratch2); // B·ė
-        // C(q, q̇)q̇ + g(q) and g(q), then M(q) (all after one forward kinematics).
+                                                                        // C(q, q̇)q̇ + g(q) and g(q), then M(q) (all after one forward kinematics).
         self.model.nonlinear_effects(q, qd, &mut self.data, &mut self.bias)?;
         self.model.gravity_after_fk(&mut self.data, tau);
         let mut lhs = std::mem::take(&mut self.implicit_lhs);

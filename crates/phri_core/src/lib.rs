@@ -4,6 +4,11 @@
 //! Pure Rust, no Python and no I/O beyond reading a robot description. Units are SI throughout:
 //! m, rad, s, kg, N, N·m.
 
+// `!(x > 0.0)` is deliberate throughout: it is true for NaN, so invalid input fails the check.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Kernels index several parallel per-joint slices in one loop; iterator zips would obscure them.
+#![allow(clippy::needless_range_loop)]
+
 pub mod data;
 pub mod deform;
 pub mod dynamics;

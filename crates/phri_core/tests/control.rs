@@ -255,8 +255,8 @@ proptest! {
             u.clip(&mut w);
             u.apply(&mut w, &dphi, None).unwrap();
             let p = u.params();
-            for i in 0..3 {
-                prop_assert!(w[i] >= p.lower[i] && w[i] <= p.upper[i]);
+            for (i, wi) in w.iter().enumerate() {
+                prop_assert!(*wi >= p.lower[i] && *wi <= p.upper[i]);
             }
         }
     }

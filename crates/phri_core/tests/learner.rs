@@ -65,7 +65,9 @@ fn hand(l: &Learner, t: f64) -> Vector3<f64> {
 
 #[test]
 fn scripted_pushes_move_each_task_weight_the_right_way() {
-    let cases: Vec<(&str, [f64; 7], [f64; 7], f64, f64)> = vec![
+    // (task feature, start, goal, step, upper bound)
+    type Case = (&'static str, [f64; 7], [f64; 7], f64, f64);
+    let cases: Vec<Case> = vec![
         ("table", PICK_BASIC, PLACE_LOWER, 2.0, 1.0),
         ("coffee", PICK_SHELF, PLACE_LOWER, 2.0, 1.0),
         ("laptop", PICK_BASIC, PLACE_HIGHER, 100.0, 10.0),

@@ -52,10 +52,7 @@ impl PyLearner {
             "cubic" => Interpolation::Cubic,
             "linear" => Interpolation::Linear,
             other => {
-                return Err(error(
-                    Kind::InvalidParameter,
-                    format!("interpolation must be 'cubic' or 'linear', got '{other}'"),
-                ))
+                return Err(error(Kind::InvalidParameter, format!("interpolation must be 'cubic' or 'linear', got '{other}'")))
             }
         };
         let set = features.set.clone();
@@ -64,12 +61,8 @@ impl PyLearner {
         let start = vector("start", &start, n)?.into_owned();
         let goal = vector("goal", &goal, n)?.into_owned();
         let params = LearnerParams { learning, sample_period, duration, interpolation };
-        let (deformation, update, detector, optimizer) = (
-            deformation.deformation.clone(),
-            update.update.clone(),
-            detector.detector.clone(),
-            optimizer.optimizer.clone(),
-        );
+        let (deformation, update, detector, optimizer) =
+            (deformation.deformation.clone(), update.update.clone(), detector.detector.clone(), optimizer.optimizer.clone());
         let learner = py
             .detach(|| Learner::new(params, set, deformation, update, detector, optimizer, &weights, &start, &goal))
             .py_err()?;

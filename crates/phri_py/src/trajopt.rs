@@ -141,9 +141,7 @@ impl PyTrajectoryOptimizer {
         };
         let mut plan = vec![0.0; m * n];
         let (optimizer, features) = (&mut self.optimizer, &mut self.features);
-        let info = py
-            .detach(|| optimizer.solve(features, &weights, &start, &goal, init.as_deref(), &mut plan))
-            .py_err()?;
+        let info = py.detach(|| optimizer.solve(features, &weights, &start, &goal, init.as_deref(), &mut plan)).py_err()?;
         Ok((PyArray1::from_vec(py, plan).reshape([m, n])?, info.into()))
     }
 

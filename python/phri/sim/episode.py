@@ -117,11 +117,16 @@ class Planner:
             world.model, task.feature_names, laptop_center=s.laptop_center, human_center=s.human_center,
             radius=s.radius, samples=s.samples,
         )  # fmt: skip
-        clearance = [(HAND, s.table_height + HAND_CLEARANCE), ("j2s7s300_link_7", s.table_height + CUP_CLEARANCE)]
+        clearance = [
+            (HAND, s.table_height + HAND_CLEARANCE),
+            ("j2s7s300_link_7", s.table_height + CUP_CLEARANCE),
+        ]
         # Joint speeds within the arm's limits, with a margin for tracking.
         spacing = task.duration / (task.waypoints - 1)
         max_step = VELOCITY_MARGIN * world.model.velocity_limits * spacing
-        self.optimizer = TrajectoryOptimizer(self.features, task.waypoints, clearance=clearance, max_step=max_step)
+        self.optimizer = TrajectoryOptimizer(
+            self.features, task.waypoints, clearance=clearance, max_step=max_step
+        )
         world.model.check_limits(task.start)
         world.model.check_limits(task.goal)
         self.desired, _ = self.optimizer.solve(task.vector("true"), task.start, task.goal)
@@ -197,7 +202,11 @@ def run_episode(
             q, qd = world.state()
             push = person.wrench(t, q)
             if k % sample_every == 0:
-                measured = bias + rng.normal(0.0, config.sensor_noise, model.nq) if config.sensor_noise else bias.copy()
+                measured = (
+                    bias + rng.normal(0.0, config.sensor_noise, model.nq)
+                    if config.sensor_noise
+                    else bias.copy()
+                )
                 if push is not None:
                     measured += model.jacobian(HAND, q).T @ np.concatenate(push)
                 learner.observe(t, measured)
@@ -224,7 +233,9 @@ def run_episode(
     plans = learner.plans()
     # The executed path at the plan's waypoint times, scored with the same features.
     n_wp = task.waypoints
-    idx = np.minimum(np.round(np.linspace(0, task.duration, n_wp) / (dt * log_every)).astype(int), max(row - 1, 0))
+    idx = np.minimum(
+        np.round(np.linspace(0, task.duration, n_wp) / (dt * log_every)).astype(int), max(row - 1, 0)
+    )
     executed = log["q"][idx]
     phi = planner.features.phi(executed)
     frame = "j2s7s300_link_7"

@@ -110,6 +110,7 @@ class Participant:
         e = self.desired_position[k] - pose[:3, 3]
         size = math.sqrt(float(e @ e))
         return size, (e / size if size > 0 else e)
+
     def wrench(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The push at time `t` [s] for joint positions `q`, or None when not touching the robot.
 

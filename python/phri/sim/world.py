@@ -136,18 +136,26 @@ class World:
 
     def hand_position(self) -> np.ndarray:
         """World position of the tool point (where the person pushes) [m]."""
-        s = self.p.getLinkState(self.robot_id, self.links[HAND], computeForwardKinematics=True, physicsClientId=self.client)
+        s = self.p.getLinkState(
+            self.robot_id, self.links[HAND], computeForwardKinematics=True, physicsClientId=self.client
+        )
         return np.array(s[4])
 
-    def step(self, tau: np.ndarray, force: np.ndarray | None = None, torque: np.ndarray | None = None) -> None:
+    def step(
+        self, tau: np.ndarray, force: np.ndarray | None = None, torque: np.ndarray | None = None
+    ) -> None:
         """Applies joint torques `tau` [N·m] and, if given, a push at the hand (world-frame force [N]
         at the tool point, torque [N·m]) for one time step, then steps the physics."""
         p, c = self.p, self.client
-        p.setJointMotorControlArray(self.robot_id, self.joints, p.TORQUE_CONTROL, forces=tau, physicsClientId=c)
+        p.setJointMotorControlArray(
+            self.robot_id, self.joints, p.TORQUE_CONTROL, forces=tau, physicsClientId=c
+        )
         hand = self.links[HAND]
         if force is not None:
             pos = self.hand_position()
-            p.applyExternalForce(self.robot_id, hand, force.tolist(), pos.tolist(), p.WORLD_FRAME, physicsClientId=c)
+            p.applyExternalForce(
+                self.robot_id, hand, force.tolist(), pos.tolist(), p.WORLD_FRAME, physicsClientId=c
+            )
         if torque is not None:
             p.applyExternalTorque(self.robot_id, hand, torque.tolist(), p.WORLD_FRAME, physicsClientId=c)
         p.stepSimulation(physicsClientId=c)

@@ -1,0 +1,248 @@
+"""Where episodes run: in this process, in a local process pool, or on Ray actors.
+
+Each backend maps episode specs to :class:`~phri.study.runner.Outcome` s and yields them as they
+finish. A worker (pool process or Ray actor) holds one :class:`EpisodeRunner`, so one simulator World
+and one Planner per task, reused across its episodes. Because an episode's seed comes from what the
+episode is (see :mod:`phri.study.protocol`) and the simulator is reset per episode, every backend gives
+the same table.
+
+Workers are single-threaded for BLAS/OpenMP: the variables of :data:`THREAD_ENV` are in each worker's
+environment from its start, so they are set before the worker imports numpy (pool workers are spawned,
+not forked, with these variables; Ray actors get them through their runtime environment).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+from collections import deque
+from collections.abc import Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from typing import Any, Protocol
+
+from phri.exceptions import InvalidParameterError
+from phri.study.protocol import EpisodeSpec, StudyConfig
+from phri.study.runner import EpisodeRunner, Outcome
+
+__all__ = ["BACKENDS", "THREAD_ENV", "Backend", "ProcessBackend", "RayBackend", "SerialBackend", "make_backend"]
+
+BACKENDS = ("serial", "process", "ray")
+
+#: One thread per worker for every common BLAS/OpenMP runtime.
+THREAD_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "BLIS_NUM_THREADS": "1",
+    "VECLIB_MAXIMUM_THREADS": "1",
+    "NUMEXPR_NUM_THREADS": "1",
+    "RAYON_NUM_THREADS": "1",
+}
+
+
+class Backend(Protocol):
+    """Runs episodes; `run` yields their outcomes in completion order."""
+
+    workers: int
+
+    def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]: ...
+
+    def close(self) -> None: ...
+
+
+def default_workers() -> int:
+    """The CPUs this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return max(1, os.cpu_count() or 1)
+
+
+class SerialBackend:
+    """Episodes one after another in this process (one World)."""
+
+    def __init__(self, config: StudyConfig, log_width: int = 2) -> None:
+        self.workers = 1
+        self.runner = EpisodeRunner(config, log_width)
+
+    def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
+        for spec in specs:
+            yield self.runner.run(spec)
+
+    def close(self) -> None:
+        self.runner.close()
+
+
+# -- process pool ---------------------------------------------------------------------------------
+
+_RUNNER: EpisodeRunner | None = None
+
+
+def _init_worker(config: StudyConfig, log_width: int, env: dict[str, str]) -> None:
+    """Pool initializer: pins the thread variables (already inherited at spawn) and builds the
+    worker's runner; the World itself is made on the first episode."""
+    global _RUNNER
+    os.environ.update(env)
+    _RUNNER = EpisodeRunner(config, log_width)
+
+
+def _run_in_worker(spec: EpisodeSpec) -> Outcome:
+    assert _RUNNER is not None, "worker not initialised"
+    return _RUNNER.run(spec)
+
+
+def _worker_environment() -> dict[str, str]:
+    """This worker's BLAS/OpenMP environment (for tests: proves the pinning reached the worker)."""
+    return {k: os.environ.get(k, "") for k in THREAD_ENV}
+
+
+@contextlib.contextmanager
+def _environment(env: dict[str, str]) -> Iterator[None]:
+    """Sets `env` in this process while workers are spawned (they inherit it), then restores it."""
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+class ProcessBackend:
+    """A local pool of `workers` spawned processes (concurrent.futures), each with one World.
+
+    At most two episodes per worker are queued at a time, so an interrupted study wastes little work."""
+
+    def __init__(self, config: StudyConfig, workers: int | None = None, log_width: int = 2) -> None:
+        self.workers = workers or default_workers()
+        if self.workers < 1:
+            raise InvalidParameterError(f"workers must be >= 1, got {self.workers}")
+        self.config, self.log_width = config, log_width
+        self._pool: ProcessPoolExecutor | None = None
+
+    def _start(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(
+                max_workers=self.workers,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=_init_worker,
+                initargs=(self.config, self.log_width, THREAD_ENV),
+            )
+        return self._pool
+
+    def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
+        todo = deque(specs)
+        running: set[Future[Outcome]] = set()
+        # Workers are spawned lazily by submit(): keep the variables set while submitting.
+        with _environment(THREAD_ENV):
+            pool = self._start()
+            try:
+                while todo or running:
+                    while todo and len(running) < 2 * self.workers:
+                        running.add(pool.submit(_run_in_worker, todo.popleft()))
+                    done, running = wait(running, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        yield future.result()
+            finally:
+                for future in running:
+                    future.cancel()
+
+    def worker_environments(self) -> list[dict[str, str]]:
+        """The thread variables each worker sees (one call per worker, for checks)."""
+        with _environment(THREAD_ENV):
+            pool = self._start()
+            return [f.result() for f in [pool.submit(_worker_environment) for _ in range(self.workers)]]
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+# -- Ray ------------------------------------------------------------------------------------------
+
+
+class _RayWorker:
+    """The body of a Ray actor: one runner (one World) for the actor's lifetime."""
+
+    def __init__(self, config: StudyConfig, log_width: int) -> None:
+        self.runner = EpisodeRunner(config, log_width)
+
+    def run(self, spec: EpisodeSpec) -> Outcome:
+        return self.runner.run(spec)
+
+    def environment(self) -> dict[str, str]:
+        return _worker_environment()
+
+
+class RayBackend:
+    """`workers` Ray actors, each keeping one simulator; on a cluster with `address` (e.g. "auto"),
+    else a local Ray instance with `workers` CPUs. Logs travel back as bytes: no shared disk needed.
+
+    Ray is the optional extra ``phri[ray]``."""
+
+    def __init__(
+        self, config: StudyConfig, workers: int | None = None, log_width: int = 2, address: str | None = None
+    ) -> None:
+        try:
+            import ray
+        except ImportError as e:
+            raise ImportError("the 'ray' backend needs Ray: pip install 'phri[ray]' (or: pip install ray)") from e
+        self.ray = ray
+        self.workers = workers or default_workers()
+        if self.workers < 1:
+            raise InvalidParameterError(f"workers must be >= 1, got {self.workers}")
+        self._started = False
+        if not ray.is_initialized():
+            kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": self.workers}
+            ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
+            self._started = True
+        actor = ray.remote(num_cpus=1)(_RayWorker)
+        options = {"runtime_env": {"env_vars": dict(THREAD_ENV)}}
+        self.actors = [actor.options(**options).remote(config, log_width) for _ in range(self.workers)]
+
+    def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
+        ray = self.ray
+        todo = deque(specs)
+        idle = deque(a for a in self.actors for _ in range(2))  # two queued episodes per actor
+        running: dict[Any, Any] = {}
+        try:
+            while todo or running:
+                while todo and idle:
+                    actor = idle.popleft()
+                    running[actor.run.remote(todo.popleft())] = actor
+                done, _ = ray.wait(list(running), num_returns=1)
+                for ref in done:
+                    idle.append(running.pop(ref))
+                    yield ray.get(ref)
+        finally:
+            for ref in running:
+                ray.cancel(ref)
+
+    def worker_environments(self) -> list[dict[str, str]]:
+        return self.ray.get([a.environment.remote() for a in self.actors])
+
+    def close(self) -> None:
+        for actor in self.actors:
+            self.ray.kill(actor)
+        self.actors = []
+        if self._started:
+            self.ray.shutdown()
+            self._started = False
+
+
+def make_backend(
+    name: str, config: StudyConfig, workers: int | None = None, log_width: int = 2, address: str | None = None
+) -> Backend:
+    """A backend by name: "serial", "process" (default for studies) or "ray"."""
+    if name == "serial":
+        return SerialBackend(config, log_width)
+    if name == "process":
+        return ProcessBackend(config, workers, log_width)
+    if name == "ray":
+        return RayBackend(config, workers, log_width, address)
+    raise InvalidParameterError(f"backend must be one of {BACKENDS}, got {name!r}")

@@ -1,0 +1,287 @@
+"""The study protocol (paper §4.1): who does what, in which order, with which random numbers.
+
+P simulated participants, within subjects: every participant uses every strategy. The order of the
+strategies is counterbalanced (a Latin square: participant p starts with strategy p mod k). Per
+strategy a participant does the familiarization task and then tasks 1-3, each attempted twice.
+
+Every random number is derived from the study seed with :class:`numpy.random.SeedSequence`, keyed by
+what it is for, never by when it is drawn: participant p's parameters from ``(seed, 0, p)``, and an
+episode's seed from ``(seed, 1, p, crc32(strategy), crc32(task), attempt)``. So results do not depend on
+execution order, on the backend, or on which other tasks the study contains.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import sys
+import zlib
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from phri.config import STUDY_TASKS, Task, load_task
+from phri.exceptions import ConfigError
+from phri.sim.episode import STRATEGIES, EpisodeConfig
+from phri.sim.participant import ParticipantParams
+from phri.study.errors import StudyConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = [
+    "EpisodeSpec",
+    "StudyConfig",
+    "episode_seed",
+    "participant_params",
+    "schedule",
+    "strategy_order",
+]
+
+_PARTICIPANT_KEY = 0
+_EPISODE_KEY = 1
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """Everything that defines a study's results. Two runs with equal configs give equal tables.
+
+    Execution settings (backend, workers, progress bar) are not part of it."""
+
+    #: Number of simulated participants (the paper: 10).
+    participants: int = 10
+    #: Attempts per task and strategy (the paper: 2).
+    attempts: int = 2
+    #: Study seed (a non-negative integer).
+    seed: int = 0
+    #: Tasks in the order a participant does them: shipped names or paths of task TOML files.
+    tasks: tuple[str, ...] = STUDY_TASKS
+    #: The task that only familiarizes (left out of the pooled ANOVA); None: every task counts.
+    familiarization: str | None = "human"
+    #: Strategies compared (within subjects, order counterbalanced).
+    strategies: tuple[str, ...] = STRATEGIES
+    #: Override of every task's duration [s] (None: the task file's; the study's is 15 s).
+    duration: float | None = None
+    #: Override of every task's number of plan waypoints (None: the task file's).
+    waypoints: int | None = None
+    #: Rate at which the robot samples the person's torque [Hz] (EpisodeConfig.sample_rate).
+    sample_rate: float = 10.0
+    #: Gaussian noise on the joint-torque measurement [N·m] (EpisodeConfig.sensor_noise).
+    sensor_noise: float = 0.1
+    #: Weight-update rule: "all" (the paper), "max" or "confidence" (EpisodeConfig.rule).
+    rule: str = "all"
+
+    def __post_init__(self) -> None:
+        def fail(key: str, expected: str, got: Any) -> StudyConfigError:
+            return StudyConfigError(f"study: {key} must be {expected}, got {got!r}")
+
+        def integer(v: Any) -> bool:
+            return isinstance(v, int | np.integer) and not isinstance(v, bool)
+
+        if not integer(self.participants) or self.participants < 1:
+            raise fail("participants", "an integer >= 1", self.participants)
+        if not integer(self.attempts) or self.attempts < 1:
+            raise fail("attempts", "an integer >= 1", self.attempts)
+        if not integer(self.seed) or self.seed < 0:
+            raise fail("seed", "an integer >= 0", self.seed)
+        object.__setattr__(self, "participants", int(self.participants))
+        object.__setattr__(self, "attempts", int(self.attempts))
+        object.__setattr__(self, "seed", int(self.seed))
+        for key in ("tasks", "strategies"):
+            value = getattr(self, key)
+            if isinstance(value, str) or not all(isinstance(x, str) and x for x in value) or not value:
+                raise fail(key, "a non-empty list of names", value)
+            if len(set(value)) != len(value):
+                raise fail(key, "a list without repeats", value)
+            object.__setattr__(self, key, tuple(str(x) for x in value))
+        for s in self.strategies:
+            if s not in STRATEGIES:
+                raise fail("strategies", f"a list of {STRATEGIES}", self.strategies)
+        paths = any(_is_path(t) for t in self.tasks)  # names known once loaded: checked in load_tasks
+        if self.familiarization is not None and not paths and self.familiarization not in self.tasks:
+            raise fail("familiarization", f"one of the study's tasks {list(self.tasks)} or none", self.familiarization)
+        if self.duration is not None:
+            if isinstance(self.duration, bool) or not isinstance(self.duration, int | float):
+                raise fail("duration", "a number of seconds > 0 or none", self.duration)
+            if not (math.isfinite(self.duration) and self.duration > 0):
+                raise fail("duration", "a number of seconds > 0 or none", self.duration)
+            object.__setattr__(self, "duration", float(self.duration))
+        if self.waypoints is not None and (not integer(self.waypoints) or self.waypoints < 3):
+            raise fail("waypoints", "an integer >= 3 or none", self.waypoints)
+        try:
+            EpisodeConfig(sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule)
+        except ValueError as e:
+            raise StudyConfigError(f"study: {e}") from None
+        if self.rule not in ("all", "max", "confidence"):
+            raise fail("rule", "'all', 'max' or 'confidence'", self.rule)
+
+    # -- the study's parts ------------------------------------------------------------------------
+
+    def episode_config(self, strategy: str) -> EpisodeConfig:
+        return EpisodeConfig(
+            strategy=strategy, sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule
+        )
+
+    def load_tasks(self) -> dict[str, Task]:
+        """The study's tasks by name, with the duration/waypoints overrides applied."""
+        tasks: dict[str, Task] = {}
+        for spec in self.tasks:
+            try:
+                task = load_task(spec)
+            except ConfigError as e:
+                raise StudyConfigError(f"study: task {spec!r}: {e}") from None
+            if self.duration is not None:
+                task = dataclasses.replace(task, duration=self.duration)
+            if self.waypoints is not None:
+                task = dataclasses.replace(task, waypoints=self.waypoints)
+            if task.name in tasks:
+                raise StudyConfigError(f"study: two tasks are named {task.name!r}; task names must be unique")
+            tasks[task.name] = task
+        if self.familiarization is not None and self.familiarization not in tasks:
+            raise StudyConfigError(
+                f"study: familiarization must be one of the study's tasks {list(tasks)} or none, "
+                f"got {self.familiarization!r}"
+            )
+        return tasks
+
+    def task_names(self) -> list[str]:
+        """Names of the study's tasks (a file's `name` key for a task given as a path)."""
+        return [t.name for t in self.load_tasks().values()] if any(_is_path(t) for t in self.tasks) else list(self.tasks)
+
+    @property
+    def episodes(self) -> int:
+        return self.participants * len(self.strategies) * len(self.tasks) * self.attempts
+
+    # -- serialisation ------------------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["tasks"], d["strategies"] = list(self.tasks), list(self.strategies)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "study") -> StudyConfig:
+        """From a mapping such as a parsed study.json or study TOML; unknown keys are errors."""
+        if not isinstance(data, Mapping):
+            raise StudyConfigError(f"{source}: expected a table of study parameters, got {type(data).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise StudyConfigError(f"{source}: unknown key(s) {unknown}; known: {sorted(known)}")
+        kwargs = dict(data)
+        for key in ("tasks", "strategies"):
+            if key in kwargs:
+                if not isinstance(kwargs[key], list | tuple):
+                    raise StudyConfigError(f"{source}: key '{key}' must be a list of names, got {kwargs[key]!r}")
+                kwargs[key] = tuple(kwargs[key])
+        if kwargs.get("familiarization") == "":
+            kwargs["familiarization"] = None
+        try:
+            return cls(**kwargs)
+        except StudyConfigError as e:
+            raise StudyConfigError(str(e).replace("study: ", f"{source}: key ", 1)) from None
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> StudyConfig:
+        """A study file: top-level keys as the fields of this class, e.g. ``participants = 10``.
+        ``familiarization = ""`` means none."""
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as e:
+            raise StudyConfigError(f"{path}: cannot read the study file ({e.strerror})") from None
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise StudyConfigError(f"{path}: not valid TOML ({e})") from None
+        return cls.from_dict(data, str(path))
+
+    def task_digests(self) -> dict[str, str]:
+        """A SHA-256 per task of what the task file said (after overrides), so that a resumed
+        study notices a task file that changed in between."""
+        out = {}
+        for name, task in self.load_tasks().items():
+            d = {
+                k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                for k, v in dataclasses.asdict(task).items()
+                if k != "source"
+            }
+            out[name] = hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
+        return out
+
+
+def _is_path(spec: str) -> bool:
+    return spec.endswith(".toml") or "/" in spec or "\\" in spec
+
+
+@dataclass(frozen=True, order=True)
+class EpisodeSpec:
+    """One attempt of one participant at one task with one strategy."""
+
+    #: Position in the study's session order (participant, order, task, attempt).
+    index: int
+    #: 1-based participant number.
+    participant: int
+    strategy: str
+    #: 1-based position of this strategy in the participant's sequence (counterbalancing).
+    order: int
+    task: str
+    #: 1-based attempt number.
+    attempt: int
+    seed: int
+
+    @property
+    def key(self) -> tuple[int, str, str, int]:
+        return (self.participant, self.strategy, self.task, self.attempt)
+
+    def log_name(self, width: int = 2) -> str:
+        return f"p{self.participant:0{width}d}_{self.strategy}_{self.task}_a{self.attempt}.npz"
+
+
+def _name_key(name: str) -> int:
+    return zlib.crc32(name.encode("utf-8"))
+
+
+def episode_seed(study_seed: int, participant: int, strategy: str, task: str, attempt: int) -> int:
+    """The episode's seed, from what the episode is (not from when it runs)."""
+    ss = np.random.SeedSequence(
+        study_seed, spawn_key=(_EPISODE_KEY, participant, _name_key(strategy), _name_key(task), attempt)
+    )
+    return int(ss.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))  # 63 bits: fits an int64 column
+
+
+def participant_params(study_seed: int, participant: int) -> ParticipantParams:
+    """Participant `participant`'s (1-based) simulated behaviour, drawn from the study seed."""
+    ss = np.random.SeedSequence(study_seed, spawn_key=(_PARTICIPANT_KEY, participant))
+    return ParticipantParams.draw(np.random.default_rng(ss))
+
+
+def strategy_order(config: StudyConfig, participant: int) -> tuple[str, ...]:
+    """Counterbalanced order (a Latin square over the strategies): participant 1 starts with the
+    first strategy, participant 2 with the second, and so on cyclically."""
+    k = len(config.strategies)
+    shift = (participant - 1) % k
+    return config.strategies[shift:] + config.strategies[:shift]
+
+
+def schedule(config: StudyConfig) -> list[EpisodeSpec]:
+    """Every episode of the study in session order."""
+    return list(_iter_schedule(config, config.task_names()))
+
+
+def _iter_schedule(config: StudyConfig, tasks: list[str]) -> Iterator[EpisodeSpec]:
+    index = 0
+    for p in range(1, config.participants + 1):
+        for order, strategy in enumerate(strategy_order(config, p), start=1):
+            for task in tasks:
+                for attempt in range(1, config.attempts + 1):
+                    seed = episode_seed(config.seed, p, strategy, task, attempt)
+                    yield EpisodeSpec(index, p, strategy, order, task, attempt, seed)
+                    index += 1

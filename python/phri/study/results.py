@@ -1,0 +1,384 @@
+"""The study folder: its manifest, its tidy results table, and the episode logs.
+
+Layout of a study folder::
+
+    study.json          the manifest: the study's parameters (StudyConfig), seed, task digests
+    participants.csv    each simulated participant's parameters and strategy order
+    results.csv         the table, one row per finished episode, appended and fsync'ed as each ends
+    results.parquet     the same table in session order, rewritten (atomically) as the study goes
+    logs/*.npz          each episode's compressed log (run_episode's arrays)
+
+``results.csv`` is the journal: an episode is done exactly when its row is there. Rerunning the same
+study on the folder skips those and runs the rest; a different study is refused
+(:class:`StudyMismatchError`) before anything is touched. Floats are written with ``repr`` and read
+back exactly, so a resumed table is bit-for-bit the table of an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from phri.study.errors import StudyFileError, StudyLockedError, StudyMismatchError
+from phri.study.protocol import EpisodeSpec, StudyConfig, participant_params, schedule, strategy_order
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from phri.config import Task
+    from phri.sim.episode import EpisodeResult
+
+__all__ = ["COLUMNS", "ResultStore", "episode_row", "failed_row", "load_results", "read_manifest"]
+
+MANIFEST = "study.json"
+RESULTS_CSV = "results.csv"
+RESULTS_PARQUET = "results.parquet"
+PARTICIPANTS_CSV = "participants.csv"
+LOGS = "logs"
+LOCK = ".study.lock"
+FORMAT = "phri-study"
+FORMAT_VERSION = 1
+
+#: The columns of the results table, in order, with their types.
+COLUMNS: dict[str, type] = {
+    "participant": int,  # 1-based
+    "strategy": str,  # "impedance" or "learning"
+    "order": int,  # 1-based position of the strategy in the participant's sequence
+    "task": str,
+    "attempt": int,  # 1-based
+    "seed": int,  # the episode's seed (derived from the study seed)
+    "status": str,  # "ok" or "failed" (a SimulationError; metrics NaN)
+    "effort": float,  # Σ over interaction samples of Σ_j |u_H,j| [N·m]
+    "interaction_time": float,  # interaction samples × sample period [s]
+    "cost": float,  # task-feature count of the executed path
+    "desired_cost": float,  # the same count for the desired (true-weight) plan
+    "final_weight": float,  # final weight of the task's feature
+    "final_weights": str,  # JSON {feature: final weight}
+    "tracking_error": float,  # [m]
+    "wall_time": float,  # [s] (differs between runs; everything else does not)
+    "log": str,  # path of the episode's .npz, relative to the study folder
+    "error": str,  # the SimulationError's message for a failed episode
+}
+KEY = ("participant", "strategy", "task", "attempt")
+
+
+def episode_row(spec: EpisodeSpec, result: EpisodeResult, task: Task, log: str) -> dict[str, Any]:
+    """The table row of a finished episode."""
+    weights = dict(zip(task.feature_names, (float(w) for w in result.final_weights), strict=True))
+    return {
+        "participant": spec.participant,
+        "strategy": spec.strategy,
+        "order": spec.order,
+        "task": spec.task,
+        "attempt": spec.attempt,
+        "seed": spec.seed,
+        "status": "ok",
+        "effort": float(result.effort),
+        "interaction_time": float(result.interaction_time),
+        "cost": float(result.cost),
+        "desired_cost": float(result.desired_cost),
+        "final_weight": weights[task.task_feature],
+        "final_weights": json.dumps(weights),
+        "tracking_error": float(result.tracking_error),
+        "wall_time": float(result.wall_time),
+        "log": log,
+        "error": "",
+    }
+
+
+def failed_row(spec: EpisodeSpec, message: str, log: str) -> dict[str, Any]:
+    """The row of an episode whose simulation failed: NaN metrics and the message."""
+    nan = math.nan
+    return {
+        "participant": spec.participant, "strategy": spec.strategy, "order": spec.order, "task": spec.task,
+        "attempt": spec.attempt, "seed": spec.seed, "status": "failed",
+        "effort": nan, "interaction_time": nan, "cost": nan, "desired_cost": nan, "final_weight": nan,
+        "final_weights": "{}", "tracking_error": nan, "wall_time": nan, "log": log,
+        "error": " ".join(message.split()),
+    }  # fmt: skip
+
+
+def _format_row(row: dict[str, Any]) -> str:
+    buffer = io.StringIO()
+    # csv writes floats with repr(): shortest round-trip text, so reading gives back the same bits.
+    csv.writer(buffer, lineterminator="\n").writerow([row[c] for c in COLUMNS])
+    return buffer.getvalue()
+
+
+def _parse_rows(path: Path, text: str) -> list[dict[str, Any]]:
+    """The complete rows of results.csv; a torn last line (no newline: the writer was killed) is
+    ignored. Anything else malformed is a StudyFileError naming the line."""
+    if not text:
+        raise StudyFileError(f"{path}: empty file (expected the header {','.join(COLUMNS)})")
+    complete = text[: text.rfind("\n") + 1] if not text.endswith("\n") else text
+    lines = list(csv.reader(io.StringIO(complete)))
+    if not lines or lines[0] != list(COLUMNS):
+        got = lines[0] if lines else []
+        raise StudyFileError(f"{path}: line 1: expected the header {','.join(COLUMNS)}, got {','.join(got)}")
+    rows = []
+    for n, fields in enumerate(lines[1:], start=2):
+        if len(fields) != len(COLUMNS):
+            raise StudyFileError(f"{path}: line {n}: expected {len(COLUMNS)} fields, got {len(fields)}")
+        row: dict[str, Any] = {}
+        for (column, kind), value in zip(COLUMNS.items(), fields, strict=True):
+            try:
+                row[column] = kind(value)
+            except ValueError:
+                raise StudyFileError(
+                    f"{path}: line {n}: column '{column}' must be {kind.__name__}, got {value!r}"
+                ) from None
+        rows.append(row)
+    return rows
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_manifest(run_dir: str | Path) -> tuple[StudyConfig, dict[str, Any]] | None:
+    """(config, manifest) of the study in `run_dir`, or None if it holds no study.json."""
+    path = Path(run_dir) / MANIFEST
+    if not path.exists():
+        return None
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise StudyFileError(f"{path}: not a readable study manifest ({e}); the folder was left untouched") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise StudyFileError(f"{path}: not a phri study manifest (key 'format' must be {FORMAT!r})")
+    if manifest.get("version") != FORMAT_VERSION:
+        raise StudyFileError(f"{path}: key 'version' must be {FORMAT_VERSION}, got {manifest.get('version')!r}")
+    try:
+        config = StudyConfig.from_dict(manifest.get("config"), f"{path}: config")
+    except ValueError as e:
+        raise StudyFileError(f"{e} (the folder was left untouched)") from None
+    return config, manifest
+
+
+def _differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
+    return [f"{k}: {a.get(k)!r} here, {b.get(k)!r} asked" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+
+
+class ResultStore:
+    """A study folder opened for writing (one writer at a time: a lock file guards it).
+
+    Use :meth:`open`; then :meth:`record` each finished episode and :meth:`export` the Parquet table."""
+
+    def __init__(self, run_dir: Path, config: StudyConfig, specs: list[EpisodeSpec], rows: list[dict[str, Any]]):
+        self.run_dir, self.config, self.specs = run_dir, config, specs
+        self._index = {s.key: s for s in specs}
+        self.rows: dict[tuple[Any, ...], dict[str, Any]] = {tuple(r[k] for k in KEY): r for r in rows}
+        self._lock_file: Any = None
+        self.log_width = max(2, len(str(config.participants)))
+
+    # -- opening ---------------------------------------------------------------------------------
+
+    @classmethod
+    def open(cls, run_dir: str | Path, config: StudyConfig | None = None) -> ResultStore:
+        """Opens (or creates) the study folder `run_dir` for `config`.
+
+        With `config` None the folder's own study is resumed (a folder without one gets the default
+        study). Raises :class:`StudyMismatchError` if the folder holds a different study, and
+        :class:`StudyFileError` if its files are broken or it holds results without a manifest."""
+        run_dir = Path(run_dir)
+        if run_dir.exists() and not run_dir.is_dir():
+            raise StudyFileError(f"{run_dir}: exists and is not a folder")
+        existing = read_manifest(run_dir)
+        if existing is None:
+            leftovers = [n for n in (RESULTS_CSV, RESULTS_PARQUET, LOGS, PARTICIPANTS_CSV) if (run_dir / n).exists()]
+            if leftovers:
+                raise StudyFileError(
+                    f"{run_dir}: holds {', '.join(leftovers)} but no {MANIFEST}: not a phri study folder or a "
+                    "damaged one; choose an empty folder (nothing was changed)"
+                )
+            config = config or StudyConfig()
+        else:
+            found, manifest = existing
+            if config is None:
+                config = found
+            elif config != found:
+                raise StudyMismatchError(
+                    f"{run_dir}: holds another study's results ({'; '.join(_differences(found.to_dict(), config.to_dict()))}). "
+                    "Run it into a new folder, or resume this one without study options; nothing was changed"
+                )
+            digests = config.task_digests()
+            if manifest.get("task_digests") != digests:
+                changed = [t for t in digests if manifest.get("task_digests", {}).get(t) != digests[t]]
+                raise StudyMismatchError(
+                    f"{run_dir}: the task file(s) {changed} changed since this study started; "
+                    "its results would mix two task definitions (nothing was changed)"
+                )
+        run_dir.mkdir(parents=True, exist_ok=True)
+        store = cls(run_dir, config, schedule(config), [])
+        store._lock()
+        try:
+            if existing is None:
+                store._create()
+            store._load()
+        except BaseException:
+            store.close()
+            raise
+        return store
+
+    def _lock(self) -> None:
+        self._lock_file = open(self.run_dir / LOCK, "a+")  # noqa: SIM115 - held until close()
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - Windows: no advisory lock
+            return
+        try:
+            fcntl.flock(self._lock_file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self._lock_file.close()
+            self._lock_file = None
+            raise StudyLockedError(f"{self.run_dir}: another process is running a study into this folder") from None
+
+    def _create(self) -> None:
+        from phri import __version__
+
+        manifest = {
+            "format": FORMAT,
+            "version": FORMAT_VERSION,
+            "config": self.config.to_dict(),
+            "task_digests": self.config.task_digests(),
+            "episodes": len(self.specs),
+            "phri_version": __version__,
+            "python": sys.version.split()[0],
+        }
+        (self.run_dir / LOGS).mkdir(exist_ok=True)
+        people = io.StringIO()
+        writer = csv.writer(people, lineterminator="\n")
+        params = [participant_params(self.config.seed, p) for p in range(1, self.config.participants + 1)]
+        fields = list(params[0].as_dict())
+        writer.writerow(["participant", "strategy_order", *fields])
+        for p, pp in enumerate(params, start=1):
+            writer.writerow([p, " ".join(strategy_order(self.config, p)), *pp.as_dict().values()])
+        _write_atomic(self.run_dir / PARTICIPANTS_CSV, people.getvalue().encode())
+        _write_atomic(self.run_dir / RESULTS_CSV, _format_header().encode())
+        # The manifest last: a folder with a manifest is a complete, resumable study folder.
+        _write_atomic(self.run_dir / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+
+    def _load(self) -> None:
+        path = self.run_dir / RESULTS_CSV
+        if not path.exists():
+            raise StudyFileError(f"{path}: missing although {MANIFEST} is there; the folder is damaged (nothing was changed)")
+        text = path.read_text(encoding="utf-8")
+        rows = _parse_rows(path, text)
+        for n, row in enumerate(rows, start=2):
+            key = tuple(row[k] for k in KEY)
+            spec = self._index.get(key)  # type: ignore[arg-type]
+            if spec is None or spec.seed != row["seed"] or spec.order != row["order"]:
+                raise StudyFileError(f"{path}: line {n}: an episode {dict(zip(KEY, key, strict=True))} that is not in this study")
+            if key in self.rows:
+                raise StudyFileError(f"{path}: line {n}: episode {dict(zip(KEY, key, strict=True))} is recorded twice")
+            self.rows[key] = row
+        if not text.endswith("\n"):
+            # A row torn by a kill: it was never complete, so its episode is run again.
+            with open(path, "r+b") as f:
+                f.truncate(len(text[: text.rfind("\n") + 1].encode("utf-8")))
+        # Logs of episodes that never got their row (killed in between) are redone identically.
+        logs = self.run_dir / LOGS
+        logs.mkdir(exist_ok=True)
+        recorded = {Path(str(r["log"])).name for r in self.rows.values()}
+        for spec in self.specs:
+            name = spec.log_name(self.log_width)
+            if name not in recorded:
+                for stale in (logs / name, logs / (name + ".partial")):
+                    stale.unlink(missing_ok=True)
+
+    # -- state -----------------------------------------------------------------------------------
+
+    def pending(self) -> list[EpisodeSpec]:
+        """Episodes without a row yet, in session order."""
+        return [s for s in self.specs if s.key not in self.rows]
+
+    @property
+    def complete(self) -> bool:
+        return len(self.rows) == len(self.specs)
+
+    # -- writing ---------------------------------------------------------------------------------
+
+    def record(self, spec: EpisodeSpec, row: dict[str, Any], log: bytes) -> None:
+        """Writes the episode's log, then appends its row (fsync'ed): from then on it is done."""
+        if spec.key in self.rows:
+            raise StudyFileError(f"{self.run_dir}: episode {spec.key} is already recorded")
+        if log:
+            path = self.run_dir / LOGS / spec.log_name(self.log_width)
+            if path.exists():
+                raise FileExistsError(f"{path} exists; phri never overwrites a log")
+            _write_atomic(path, log)
+        with open(self.run_dir / RESULTS_CSV, "a", encoding="utf-8", newline="") as f:
+            f.write(_format_row(row))
+            f.flush()
+            os.fsync(f.fileno())
+        self.rows[spec.key] = row
+
+    def table(self) -> pd.DataFrame:
+        """The rows so far, in session order."""
+        return _frame(self.rows[s.key] for s in self.specs if s.key in self.rows)
+
+    def export(self, *, sort_csv: bool = False) -> None:
+        """Rewrites results.parquet (atomically) from the rows so far; with `sort_csv`, also rewrites
+        results.csv in session order (same rows, atomic replace)."""
+        table = self.table()
+        buffer = io.BytesIO()
+        table.to_parquet(buffer, index=False)
+        _write_atomic(self.run_dir / RESULTS_PARQUET, buffer.getvalue())
+        if sort_csv:
+            text = _format_header() + "".join(_format_row(self.rows[s.key]) for s in self.specs if s.key in self.rows)
+            if (self.run_dir / RESULTS_CSV).read_text(encoding="utf-8") != text:
+                _write_atomic(self.run_dir / RESULTS_CSV, text.encode("utf-8"))
+
+    def close(self) -> None:
+        if self._lock_file is not None:
+            self._lock_file.close()
+            self._lock_file = None
+
+    def __enter__(self) -> ResultStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _format_header() -> str:
+    return ",".join(COLUMNS) + "\n"
+
+
+def _frame(rows: Iterable[dict[str, Any]]) -> pd.DataFrame:
+    import pandas as pd
+
+    table = pd.DataFrame(list(rows), columns=list(COLUMNS))
+    for column, kind in COLUMNS.items():
+        table[column] = table[column].astype({int: np.int64, float: np.float64, str: "string"}[kind])
+    return table
+
+
+def load_results(run_dir: str | Path) -> pd.DataFrame:
+    """The results table of a study folder, in session order (read-only; works while it runs)."""
+    run_dir = Path(run_dir)
+    found = read_manifest(run_dir)
+    if found is None:
+        raise StudyFileError(f"{run_dir}: no {MANIFEST}; not a phri study folder")
+    config, _ = found
+    path = run_dir / RESULTS_CSV
+    if not path.exists():
+        raise StudyFileError(f"{path}: missing although {MANIFEST} is there")
+    rows = _parse_rows(path, path.read_text(encoding="utf-8"))
+    order = {s.key: s.index for s in schedule(config)}
+    rows.sort(key=lambda r: order.get(tuple(r[k] for k in KEY), len(order)))  # type: ignore[arg-type]
+    return _frame(rows)

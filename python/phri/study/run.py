@@ -1,0 +1,122 @@
+"""``phri study``: runs (or resumes) a study into a folder, with a progress bar."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from phri.exceptions import InvalidParameterError
+from phri.study.parallel import make_backend
+from phri.study.protocol import EpisodeSpec, StudyConfig
+from phri.study.results import ResultStore
+
+__all__ = ["StudyRun", "run_study"]
+
+#: results.parquet is refreshed after this many episodes (results.csv after every one).
+EXPORT_EVERY = 16
+
+
+@dataclass
+class StudyRun:
+    """What a call to :func:`run_study` did."""
+
+    run_dir: Path
+    config: StudyConfig
+    #: Episodes of the study, episodes done before this call, episodes run by this call.
+    total: int
+    resumed: int
+    ran: int
+    #: True when every episode of the study has its row.
+    complete: bool
+    #: Wall-clock time of this call [s].
+    elapsed: float
+    backend: str
+    workers: int
+
+    @property
+    def done(self) -> int:
+        return self.resumed + self.ran
+
+
+def run_study(
+    run_dir: str | Path,
+    config: StudyConfig | None = None,
+    *,
+    backend: str = "process",
+    workers: int | None = None,
+    address: str | None = None,
+    max_episodes: int | None = None,
+    progress: bool = True,
+    on_episode: Callable[[EpisodeSpec, dict[str, Any]], None] | None = None,
+    between_strategies: Callable[[int, str], None] | None = None,
+) -> StudyRun:
+    """Runs the study `config` into `run_dir`, or resumes it: episodes already in results.csv are
+    kept and skipped. With `config` None the folder's own study is resumed (or the default study is
+    started in a new folder).
+
+    `max_episodes` stops after that many new episodes (the rest is left for a later run);
+    `on_episode(spec, row)` is called after each episode is recorded (raising from it stops the study,
+    keeping everything recorded); `between_strategies(participant, strategy)` is called after a
+    participant's last episode with a strategy (for the questionnaire: runs serially, in session order).
+    """
+    if max_episodes is not None and max_episodes < 0:
+        raise InvalidParameterError(f"max_episodes must be >= 0, got {max_episodes}")
+    if between_strategies is not None and backend != "serial":
+        raise InvalidParameterError("between_strategies (the questionnaire) needs backend='serial'")
+    began = time.perf_counter()
+    store = ResultStore.open(run_dir, config)
+    config = store.config
+    try:
+        pending = store.pending()
+        resumed = len(store.rows)
+        if max_episodes is not None:
+            pending = pending[:max_episodes]
+        ran = 0
+        if pending:
+            runner = make_backend(backend, config, workers, store.log_width, address)
+            last_of_block = _block_ends(store.specs)
+            bar = _progress_bar(len(store.specs), resumed, progress, backend, runner.workers)
+            try:
+                for outcome in runner.run(pending):
+                    store.record(outcome.spec, outcome.row, outcome.log)
+                    ran += 1
+                    bar.update(1)
+                    if ran % EXPORT_EVERY == 0:
+                        store.export()
+                    if on_episode is not None:
+                        on_episode(outcome.spec, outcome.row)
+                    if between_strategies is not None and outcome.spec.key in last_of_block:
+                        bar.clear()
+                        between_strategies(outcome.spec.participant, outcome.spec.strategy)
+            finally:
+                bar.close()
+                runner.close()
+                store.export()
+        store.export(sort_csv=store.complete)
+        workers_used = runner.workers if pending else 0
+        return StudyRun(
+            Path(run_dir), config, len(store.specs), resumed, ran, store.complete,
+            time.perf_counter() - began, backend, workers_used,
+        )  # fmt: skip
+    finally:
+        store.close()
+
+
+def _block_ends(specs: list[EpisodeSpec]) -> set[tuple[int, str, str, int]]:
+    """Keys of each (participant, strategy) block's last episode in session order."""
+    last: dict[tuple[int, str], EpisodeSpec] = {}
+    for s in specs:
+        last[(s.participant, s.strategy)] = s
+    return {s.key for s in last.values()}
+
+
+def _progress_bar(total: int, initial: int, enabled: bool, backend: str, workers: int) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(
+        total=total, initial=initial, disable=not enabled, unit="episode", dynamic_ncols=True,
+        desc=f"study ({backend}, {workers} worker{'s' if workers != 1 else ''})", smoothing=0.1,
+    )  # fmt: skip

@@ -1,0 +1,83 @@
+"""Runs episodes of a study: one simulator World, reused across episodes, and one Planner per task.
+
+Every backend (serial, process pool, Ray) wraps an :class:`EpisodeRunner`; what comes back is an
+:class:`Outcome` — the table row and the episode's log as bytes — so that the process that owns the
+study folder is the only one that writes to it (and a cluster needs no shared file system).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from phri.exceptions import SimulationError
+from phri.sim.episode import Planner, run_episode
+from phri.sim.participant import ParticipantParams
+from phri.sim.world import World
+from phri.study.protocol import EpisodeSpec, StudyConfig, participant_params
+from phri.study.results import episode_row, failed_row
+
+__all__ = ["EpisodeRunner", "Outcome"]
+
+
+@dataclass
+class Outcome:
+    """One finished episode: its row of the results table and its compressed .npz log."""
+
+    spec: EpisodeSpec
+    row: dict[str, object]
+    log: bytes
+
+
+class EpisodeRunner:
+    """Runs any episode of `config`; the World and the Planners are made once and reused."""
+
+    def __init__(self, config: StudyConfig, log_width: int = 2) -> None:
+        self.config = config
+        self.tasks = config.load_tasks()
+        self.log_width = log_width
+        self._world: World | None = None
+        self._planners: dict[str, Planner] = {}
+        self._participants: dict[int, ParticipantParams] = {}
+
+    @property
+    def world(self) -> World:
+        if self._world is None:
+            self._world = World()
+        return self._world
+
+    def planner(self, task: str) -> Planner:
+        if task not in self._planners:
+            self._planners[task] = Planner(self.tasks[task], self.world)
+        return self._planners[task]
+
+    def participant(self, p: int) -> ParticipantParams:
+        if p not in self._participants:
+            self._participants[p] = participant_params(self.config.seed, p)
+        return self._participants[p]
+
+    def run(self, spec: EpisodeSpec) -> Outcome:
+        """Simulates `spec`. A :class:`~phri.exceptions.SimulationError` becomes a row with status
+        "failed" (metrics NaN, the message in `error`) and the partial log; other errors propagate."""
+        task = self.tasks[spec.task]
+        name = spec.log_name(self.log_width)
+        with tempfile.TemporaryDirectory(prefix="phri-episode-") as folder:
+            path = Path(folder) / name
+            try:
+                result = run_episode(
+                    task, self.world, self.participant(spec.participant),
+                    self.config.episode_config(spec.strategy),
+                    seed=spec.seed, planner=self.planner(spec.task), log_path=path,
+                )  # fmt: skip
+                row = episode_row(spec, result, task, f"logs/{name}")
+            except SimulationError as e:
+                row = failed_row(spec, str(e), f"logs/{name}" if path.exists() else "")
+            log = path.read_bytes() if path.exists() else b""
+        return Outcome(spec, row, log)
+
+    def close(self) -> None:
+        if self._world is not None:
+            self._world.close()
+            self._world = None
+        self._planners.clear()

@@ -1,0 +1,150 @@
+"""The simulated study in PyBullet (DIRECT mode): tracking, compliance, the participant, episodes,
+and the paper's result — learning beats impedance on every task — with a fixed seed."""
+
+from __future__ import annotations
+
+import numpy as np
+import phri
+import pytest
+from phri.exceptions import InvalidParameterError, SimulationError
+from phri.sim import EpisodeConfig, ParticipantParams, Planner, World, run_episode
+from phri.sim.world import HAND
+
+NOBODY = ParticipantParams(tolerance=1e9, tilt_tolerance=1e9)
+
+
+@pytest.fixture(scope="module")
+def world():
+    with World() as w:
+        yield w
+
+
+@pytest.fixture(scope="module")
+def planners(world):
+    return {name: Planner(phri.load_task(name), world) for name in ("human", "coffee", "table", "laptop")}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["human", "coffee", "table", "laptop"])
+def test_the_arm_tracks_its_plan_within_2_cm_with_nobody_touching_it(world, planners, name) -> None:
+    task = phri.load_task(name)
+    r = run_episode(task, world, NOBODY, EpisodeConfig(strategy="impedance"), planner=planners[name])
+    assert r.effort == 0.0 and r.interaction_time == 0.0
+    assert r.tracking_error < 0.02, f"{name}: the hand strayed {r.tracking_error:.3f} m from its reference"
+    np.testing.assert_allclose(r.final_weights, r.initial_weights)
+
+
+def test_a_20_N_push_at_the_hand_visibly_deflects_it(world) -> None:
+    task = phri.load_task("table")
+    world.reset(task.start)
+    controller = phri.ImpedanceController(world.model)
+    tau = np.zeros(7)
+    for _ in range(1500):
+        q, qd = world.state()
+        controller.torque_implicit(q, qd, task.start, np.zeros(7), 1e-3, out=tau)
+        world.step(tau, np.array([0.0, 0.0, -20.0]))
+    q, _ = world.state()
+    moved = world.model.frame_pose(HAND, task.start)[:3, 3] - world.model.frame_pose(HAND, q)[:3, 3]
+    assert moved[2] > 0.03, f"a 20 N downward push moved the hand only {moved} m"
+    assert np.linalg.norm(moved) < 0.3
+
+
+def test_the_simulator_agrees_with_phri_on_gravity_with_the_cup(world) -> None:
+    """Holding still under phri's gravity compensation (arm + cup payload) the arm does not drift."""
+    task = phri.load_task("coffee")
+    world.reset(task.start)
+    for _ in range(500):
+        q, _ = world.state()
+        world.step(world.model.gravity(q))
+    q, qd = world.state()
+    assert np.abs(q - task.start).max() < 1e-3
+    assert np.abs(qd).max() < 1e-2
+
+
+@pytest.mark.slow
+def test_learning_takes_less_effort_and_time_and_ends_closer_to_the_desired_cost(world, planners) -> None:
+    person = ParticipantParams.draw(np.random.default_rng(7))
+    for name, planner in planners.items():
+        task = phri.load_task(name)
+        imp = run_episode(task, world, person, EpisodeConfig(strategy="impedance"), seed=3, planner=planner)
+        learn = run_episode(task, world, person, EpisodeConfig(strategy="learning"), seed=3, planner=planner)
+        assert learn.effort < imp.effort, name
+        assert learn.interaction_time < imp.interaction_time, name
+        gap_learn, gap_imp = abs(learn.cost - learn.desired_cost), abs(imp.cost - imp.desired_cost)
+        assert gap_learn < gap_imp, f"{name}: learning {gap_learn:.3f} vs impedance {gap_imp:.3f}"
+        assert learn.final_weights[task.task_index] > task.vector("initial")[task.task_index], name
+        np.testing.assert_array_equal(imp.final_weights, imp.initial_weights)
+
+
+def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planners, tmp_path) -> None:
+    task = phri.load_task("laptop")
+    short = phri.Task(**{**task.__dict__, "duration": 3.0, "waypoints": 7})
+    planner = Planner(short, world)
+    person = ParticipantParams(tolerance=0.01, delay=0.05)
+    a = run_episode(short, world, person, seed=5, planner=planner, log_path=tmp_path / "a.npz")
+    b = run_episode(short, world, person, seed=5, planner=planner)
+    assert (a.effort, a.cost, a.interaction_time) == (b.effort, b.cost, b.interaction_time)
+    with np.load(a.log) as log:
+        for key in ("t", "q", "qd", "q_ref", "tau", "u_h", "weights", "weights_t", "plans", "plan_t", "desired"):
+            assert key in log.files
+        assert log["q"].shape == (301, 7) and log["plans"].shape[1:] == (7, 7)
+    with pytest.raises(FileExistsError):
+        run_episode(short, world, person, seed=5, planner=planner, log_path=tmp_path / "a.npz")
+
+
+def test_a_simulator_failure_is_an_error_and_the_log_so_far_stays_readable(
+    world, tmp_path, monkeypatch
+) -> None:
+    task = phri.load_task("table")
+    short = phri.Task(**{**task.__dict__, "duration": 1.0, "waypoints": 5})
+    planner = Planner(short, world)
+    real_state, calls = world.state, {"n": 0}
+
+    def failing_state():
+        calls["n"] += 1
+        if calls["n"] > 300:
+            raise SimulationError("the simulator returned a non-finite joint state")
+        return real_state()
+
+    monkeypatch.setattr(world, "state", failing_state)
+    with pytest.raises(SimulationError, match="non-finite"):
+        run_episode(short, world, NOBODY, planner=planner, log_path=tmp_path / "partial.npz")
+    with np.load(tmp_path / "partial.npz") as log:
+        assert 25 <= len(log["t"]) <= 31
+
+
+def test_bad_task_input_is_a_clear_error(world, tmp_path) -> None:
+    task = phri.load_task("table")
+    outside = phri.Task(**{**task.__dict__, "goal": np.zeros(7)})  # q = 0 violates joints 2, 4, 6
+    with pytest.raises(InvalidParameterError, match="outside the limits"):
+        Planner(outside, world)
+    with pytest.raises(InvalidParameterError, match="strategy"):
+        EpisodeConfig(strategy="ignore")
+    with pytest.raises(InvalidParameterError, match="sample_rate"):
+        EpisodeConfig(sample_rate=0)
+
+
+def test_participants_are_drawn_reproducibly_from_documented_ranges() -> None:
+    from phri.sim import DISTRIBUTIONS
+
+    a = ParticipantParams.draw(np.random.default_rng(1))
+    b = ParticipantParams.draw(np.random.default_rng(1))
+    assert a == b
+    for key, (lo, hi) in DISTRIBUTIONS.items():
+        assert lo <= getattr(a, key) <= hi
+
+
+@pytest.mark.slow
+def test_the_demo_writes_its_table_figures_frames_and_logs(tmp_path, capsys) -> None:
+    from phri.demo import run_demo
+
+    out = tmp_path / "demo"
+    result = run_demo(out, seed=7)
+    text = capsys.readouterr().out
+    assert "learning" in text and "impedance" in text
+    for name in ("summary.csv", "force_table.png", "path_laptop.png", "weights_coffee.png"):
+        assert (result.folder / name).is_file()
+    assert len(list((result.folder / "frames").glob("*.png"))) == 32
+    assert len(list((result.folder / "logs").glob("*.npz"))) == 8
+    again = run_demo(out, seed=7, frames=False)
+    assert again.folder != result.folder, "a second run must not overwrite the first"

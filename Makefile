@@ -6,7 +6,7 @@ DEPS   := $(VENV)/.deps-installed
 BUILT  := $(VENV)/.ext-built
 CARGO_SOURCES := $(shell find crates -name '*.rs' -o -name Cargo.toml) Cargo.toml
 
-.PHONY: help dev demo test test-rust test-python lint bench bench-peers clean
+.PHONY: help dev demo test test-rust test-python lint bench bench-peers bench-episode clean
 
 help:  ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -50,6 +50,9 @@ bench:  ## Criterion benchmarks (median and worst case)
 bench-peers: $(BUILT)  ## Time phri against pinocchio and PyBullet side by side
 	$(PIP) install --quiet "pin>=3"
 	$(PY) benches/peers.py
+
+bench-episode: $(BUILT)  ## Time simulated 15 s episodes against real time
+	$(PY) benches/episode.py
 
 clean:
 	cargo clean

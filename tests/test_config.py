@@ -5,8 +5,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import phri
 import pytest
+
+import phri
 from phri.exceptions import ConfigError, UnknownNameError
 
 

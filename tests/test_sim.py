@@ -4,8 +4,9 @@ and the paper's result — learning beats impedance on every task — with a fix
 from __future__ import annotations
 
 import numpy as np
-import phri
 import pytest
+
+import phri
 from phri.exceptions import InvalidParameterError, SimulationError
 from phri.sim import EpisodeConfig, ParticipantParams, Planner, World, run_episode
 from phri.sim.world import HAND
@@ -85,7 +86,19 @@ def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planne
     b = run_episode(short, world, person, seed=5, planner=planner)
     assert (a.effort, a.cost, a.interaction_time) == (b.effort, b.cost, b.interaction_time)
     with np.load(a.log) as log:
-        for key in ("t", "q", "qd", "q_ref", "tau", "u_h", "weights", "weights_t", "plans", "plan_t", "desired"):
+        for key in (
+            "t",
+            "q",
+            "qd",
+            "q_ref",
+            "tau",
+            "u_h",
+            "weights",
+            "weights_t",
+            "plans",
+            "plan_t",
+            "desired",
+        ):
             assert key in log.files
         assert log["q"].shape == (301, 7) and log["plans"].shape[1:] == (7, 7)
     with pytest.raises(FileExistsError):

@@ -19,7 +19,7 @@ impl RobotModel {
         check_len("tau", tau, n)?;
         self.forward_kinematics_unchecked(q, data);
         self.rnea_after_fk(qd, Some(qdd), true, data, tau);
-        Ok(())
+        check_result(tau)
     }
 
     /// C(q, q̇)q̇ + g(q) [N·m]: the efforts that hold the arm at zero acceleration.
@@ -30,7 +30,7 @@ impl RobotModel {
         check_len("tau", tau, n)?;
         self.forward_kinematics_unchecked(q, data);
         self.rnea_after_fk(qd, None, true, data, tau);
-        Ok(())
+        check_result(tau)
     }
 
     /// Coriolis and centrifugal efforts C(q, q̇)q̇ [N·m], without gravity.
@@ -41,7 +41,7 @@ impl RobotModel {
         check_len("tau", tau, n)?;
         self.forward_kinematics_unchecked(q, data);
         self.rnea_after_fk(qd, None, false, data, tau);
-        Ok(())
+        check_result(tau)
     }
 
     /// Gravity efforts g(q) [N·m]: what the motors must apply to hold the arm still.
@@ -182,6 +182,15 @@ impl RobotModel {
                 mass[(j, i)] = v;
             }
         }
+    }
+}
+
+/// Finite inputs so large that the products overflow (e.g. q̇ = 1e200) must not pass as a result.
+fn check_result(tau: &[f64]) -> Result<()> {
+    if tau.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(PhriError::invalid("qd", "is so large that the efforts overflow (non-finite result)"))
     }
 }
 

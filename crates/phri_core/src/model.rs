@@ -197,8 +197,27 @@ impl RobotModel {
         if !(mass.is_finite() && mass >= 0.0) {
             return Err(PhriError::invalid("mass", format!("must be a finite mass >= 0 kg, got {mass}")));
         }
-        if com.iter().chain(inertia.iter()).any(|v| !v.is_finite()) {
-            return Err(PhriError::invalid("com/inertia", "must be finite"));
+        if com.iter().any(|v| !v.is_finite()) {
+            return Err(PhriError::invalid("com", "must be finite"));
+        }
+        if inertia.iter().any(|v| !v.is_finite()) {
+            return Err(PhriError::invalid("inertia", "must be finite"));
+        }
+        let scale = inertia.amax().max(1e-300);
+        if (inertia - inertia.transpose()).amax() > 1e-9 * scale {
+            return Err(PhriError::invalid("inertia", "must be symmetric"));
+        }
+        // A physical inertia tensor is positive semidefinite and its principal moments obey the
+        // triangle inequality (each at most the sum of the other two).
+        let moments = inertia.symmetric_eigenvalues();
+        let tol = 1e-12 * scale;
+        let physical = moments.iter().all(|m| *m >= -tol)
+            && (0..3).all(|i| moments[i] <= moments[(i + 1) % 3] + moments[(i + 2) % 3] + tol);
+        if !physical {
+            return Err(PhriError::invalid(
+                "inertia",
+                format!("is not a physical inertia tensor (principal moments {:?} kg·m²)", moments.as_slice()),
+            ));
         }
         let f = &self.frames[frame.0];
         let payload = BodyInertia { mass, com, inertia }.transformed(&f.body_t_frame);

@@ -191,4 +191,15 @@ fn a_payload_adds_its_weight_to_the_gravity_torques() {
     // Joint 2 carries the cup's 2.94 N at a horizontal lever of well over 0.3 m.
     assert!((g1[1] - g0[1]).abs() > 0.5, "{g0:?} {g1:?}");
     assert!(m.clone().with_payload(cup, -1.0, nalgebra::Vector3::zeros(), nalgebra::Matrix3::zeros()).is_err());
+    let not_physical = [
+        -nalgebra::Matrix3::identity(),                                          // negative moments
+        nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, 1.0, 3.0)), // 3 > 1 + 1
+        nalgebra::Matrix3::new(1.0, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),      // not symmetric
+    ];
+    for inertia in not_physical {
+        assert!(m.clone().with_payload(cup, 0.3, nalgebra::Vector3::zeros(), inertia).is_err(), "{inertia}");
+    }
+    // Overflowing velocities are an error, not a NaN result.
+    let mut tau = vec![0.0; 7];
+    assert!(m.inverse_dynamics(&q, &[1e200; 7], &[0.0; 7], &mut m.data(), &mut tau).is_err());
 }

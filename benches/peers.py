@@ -36,6 +36,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+
 import phri
 
 FRAME = "j2s7s300_link_7"

@@ -8,9 +8,10 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-import phri
 import pybullet as p
 import pytest
+
+import phri
 
 SEED = 20171113  # fixed: every run draws the same configurations
 GRAVITY = (0.0, 0.0, -9.81)

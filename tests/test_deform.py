@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import phri
 import pytest
+
+import phri
 from phri.exceptions import InvalidParameterError, NonFiniteError, PhriError, ShapeError
 
 NORMS = ("acceleration", "jerk")

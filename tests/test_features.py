@@ -11,8 +11,9 @@ from __future__ import annotations
 import re
 
 import numpy as np
-import phri
 import pytest
+
+import phri
 from phri import exceptions as ex
 
 LINK_7 = "j2s7s300_link_7"

@@ -8,8 +8,9 @@ import re
 from pathlib import Path
 
 import numpy as np
-import phri
 import pytest
+
+import phri
 from phri import exceptions as ex
 
 K_DEFAULT = np.array([200.0, 300.0, 150.0, 150.0, 50.0, 50.0, 30.0])  # N·m/rad

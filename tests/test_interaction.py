@@ -5,8 +5,9 @@ from __future__ import annotations
 import re
 
 import numpy as np
-import phri
 import pytest
+
+import phri
 from phri import exceptions as ex
 
 JACO2_THRESHOLDS = [8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0]  # N·m, original_system.md

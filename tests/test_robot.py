@@ -15,10 +15,11 @@ import re
 from pathlib import Path
 
 import numpy as np
-import phri
 import pybullet as p
 import pytest
 from conftest import PyBulletRobot, jaco2_urdf_path, random_configurations
+
+import phri
 from phri import exceptions as ex
 
 ATOL = 1e-9  # double precision vs double precision, same URDF

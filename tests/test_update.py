@@ -7,8 +7,9 @@ from __future__ import annotations
 import re
 
 import numpy as np
-import phri
 import pytest
+
+import phri
 from phri import exceptions as ex
 
 RULES = ["all", "max", "confidence"]

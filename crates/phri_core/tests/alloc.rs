@@ -6,9 +6,14 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
+use phri_core::deform::{DeformParams, Deformation};
+use phri_core::features::{FeatureSet, SceneParams};
 use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
+use phri_core::learner::{Learner, LearnerParams};
 use phri_core::reference::{Interpolation, TimedTrajectory};
+use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
+use phri_core::update::{UpdateParams, UpdateRule, WeightUpdate};
 
 struct Counting;
 
@@ -31,8 +36,32 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+/// Builds everything a tick needs up front, so the measured loop holds nothing but tick work.
+fn learner() -> Learner {
+    let model = Arc::new(common::jaco2());
+    let frame = model.frame_id("j2s7s300_link_7").unwrap();
+    let fs = FeatureSet::from_names(model, frame, &["efficiency", "table"], &SceneParams::default()).unwrap();
+    let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
+    let update = WeightUpdate::new(UpdateParams {
+        step: vec![0.0, 2.0],
+        lower: vec![1.0, 0.0],
+        upper: vec![1.0, 1.0],
+        learned: vec![false, true],
+        ranges: vec![1.0, 1.0],
+        rule: UpdateRule::All,
+    })
+    .unwrap();
+    let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
+    let deformation = Deformation::new(DeformParams::default()).unwrap();
+    let start = common::deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);
+    let goal = common::deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]);
+    let params = LearnerParams { sample_period: 1e-3, ..Default::default() };
+    Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &start, &goal).unwrap()
+}
+
 #[test]
 fn a_control_tick_allocates_nothing() {
+    let mut learner = learner();
     let model = Arc::new(common::jaco2());
     let params = ImpedanceParams { inertia: Some(Gain::Diagonal(vec![0.5; 7])), ..ImpedanceParams::jaco2_default() };
     let mut controller = ImpedanceController::new(model, params).unwrap();
@@ -47,6 +76,10 @@ fn a_control_tick_allocates_nothing() {
     for k in 0..10_000 {
         let t = k as f64 * 1e-3;
         plan.sample(t, &mut q_ref, &mut qd_ref, &mut qdd_ref);
+        // Algorithm 1's per-tick path with nobody touching the arm, sampling every tick.
+        let obs = learner.observe(t, &[0.5, 1.0, 0.0, 0.3, 0.2, 0.1, 0.0]).unwrap();
+        assert!(obs.sampled && !obs.interacted);
+        learner.reference(t, &mut q_ref, &mut qd_ref, &mut qdd_ref);
         detector.detect(&[0.5, 9.0, 0.0, 0.0, 0.0, 0.0, 0.0], &mut u_h).unwrap();
         controller.torque(&q, &qd, &q_ref, &qd_ref, &mut tau).unwrap();
         controller.torque_full(&q, &qd, &q_ref, &qd_ref, &qdd_ref, &u_h, &mut tau).unwrap();

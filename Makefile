@@ -17,7 +17,8 @@ $(PY):
 $(DEPS): pyproject.toml | $(PY)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet "maturin>=1.7,<2" "numpy>=1.24" "pytest>=8" "pybullet>=3.2.6" "scipy>=1.11" \
-		"matplotlib>=3.7" "ruff>=0.6" "mypy>=1.10"
+		"matplotlib>=3.8" "pandas>=2.1" "pyarrow>=14" "statsmodels>=0.14" "tqdm>=4.66" "ray>=2.9" \
+		"ruff>=0.6" "mypy>=1.10"
 	touch $@
 
 $(BUILT): $(DEPS) $(CARGO_SOURCES) pyproject.toml

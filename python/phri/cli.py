@@ -40,6 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(run=_demo)
     tasks = sub.add_parser("tasks", help="list the shipped tasks")
     tasks.set_defaults(run=_tasks)
+    from phri.study.cli import register as register_study
+
+    register_study(sub)
     return parser
 
 

@@ -15,7 +15,14 @@ from phri.study.errors import (
     StudyLockedError,
     StudyMismatchError,
 )
-from phri.study.protocol import EpisodeSpec, StudyConfig, episode_seed, participant_params, schedule, strategy_order
+from phri.study.protocol import (
+    EpisodeSpec,
+    StudyConfig,
+    episode_seed,
+    participant_params,
+    schedule,
+    strategy_order,
+)
 from phri.study.results import COLUMNS, ResultStore, load_results, read_manifest
 from phri.study.run import StudyRun, run_study
 
@@ -38,4 +45,14 @@ __all__ = [
     "run_study",
     "schedule",
     "strategy_order",
+    "write_report",
 ]
+
+
+def __getattr__(name: str) -> object:
+    # The report pulls in pandas, statsmodels and matplotlib: imported when first asked for.
+    if name == "write_report":
+        from phri.study.report import write_report
+
+        return write_report
+    raise AttributeError(f"module 'phri.study' has no attribute {name!r}")

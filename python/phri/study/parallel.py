@@ -25,7 +25,15 @@ from phri.exceptions import InvalidParameterError
 from phri.study.protocol import EpisodeSpec, StudyConfig
 from phri.study.runner import EpisodeRunner, Outcome
 
-__all__ = ["BACKENDS", "THREAD_ENV", "Backend", "ProcessBackend", "RayBackend", "SerialBackend", "make_backend"]
+__all__ = [
+    "BACKENDS",
+    "THREAD_ENV",
+    "Backend",
+    "ProcessBackend",
+    "RayBackend",
+    "SerialBackend",
+    "make_backend",
+]
 
 BACKENDS = ("serial", "process", "ray")
 
@@ -191,7 +199,9 @@ class RayBackend:
         try:
             import ray
         except ImportError as e:
-            raise ImportError("the 'ray' backend needs Ray: pip install 'phri[ray]' (or: pip install ray)") from e
+            raise ImportError(
+                "the 'ray' backend needs Ray: pip install 'phri[ray]' (or: pip install ray)"
+            ) from e
         self.ray = ray
         self.workers = workers or default_workers()
         if self.workers < 1:
@@ -203,7 +213,9 @@ class RayBackend:
             self._started = True
         actor = ray.remote(num_cpus=1)(_RayWorker)
         options = {"runtime_env": {"env_vars": dict(THREAD_ENV)}}
-        self.actors = [actor.options(**options).remote(config, log_width) for _ in range(self.workers)]
+        self.actors: list[Any] = [
+            actor.options(**options).remote(config, log_width) for _ in range(self.workers)
+        ]
 
     def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
         ray = self.ray
@@ -233,6 +245,19 @@ class RayBackend:
         if self._started:
             self.ray.shutdown()
             self._started = False
+
+
+def check_backend(name: str) -> None:
+    """Raises if backend `name` is unknown (InvalidParameterError) or not installed (ImportError)."""
+    if name not in BACKENDS:
+        raise InvalidParameterError(f"backend must be one of {BACKENDS}, got {name!r}")
+    if name == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError as e:
+            raise ImportError(
+                "the 'ray' backend needs Ray: pip install 'phri[ray]' (or: pip install ray)"
+            ) from e
 
 
 def make_backend(

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from phri.config import STUDY_TASKS, Task, load_task
-from phri.exceptions import ConfigError
+from phri.config import STUDY_TASKS, Task, load_task, task_names
+from phri.exceptions import ConfigError, UnknownNameError
 from phri.sim.episode import STRATEGIES, EpisodeConfig
 from phri.sim.participant import ParticipantParams
 from phri.study.errors import StudyConfigError
@@ -105,8 +105,19 @@ class StudyConfig:
             if s not in STRATEGIES:
                 raise fail("strategies", f"a list of {STRATEGIES}", self.strategies)
         paths = any(_is_path(t) for t in self.tasks)  # names known once loaded: checked in load_tasks
+        unknown = [t for t in self.tasks if not _is_path(t) and t not in task_names()]
+        if unknown:
+            raise fail(
+                "tasks",
+                f"shipped task names ({', '.join(task_names())}) or paths of task TOML files",
+                unknown,
+            )
         if self.familiarization is not None and not paths and self.familiarization not in self.tasks:
-            raise fail("familiarization", f"one of the study's tasks {list(self.tasks)} or none", self.familiarization)
+            raise fail(
+                "familiarization",
+                f"one of the study's tasks {list(self.tasks)} or none",
+                self.familiarization,
+            )
         if self.duration is not None:
             if isinstance(self.duration, bool) or not isinstance(self.duration, int | float):
                 raise fail("duration", "a number of seconds > 0 or none", self.duration)
@@ -115,6 +126,13 @@ class StudyConfig:
             object.__setattr__(self, "duration", float(self.duration))
         if self.waypoints is not None and (not integer(self.waypoints) or self.waypoints < 3):
             raise fail("waypoints", "an integer >= 3 or none", self.waypoints)
+        for key in ("sample_rate", "sensor_noise"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise fail(key, "a finite number", v)
+            object.__setattr__(self, key, float(v))
+        if self.waypoints is not None:
+            object.__setattr__(self, "waypoints", int(self.waypoints))
         try:
             EpisodeConfig(sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule)
         except ValueError as e:
@@ -135,7 +153,7 @@ class StudyConfig:
         for spec in self.tasks:
             try:
                 task = load_task(spec)
-            except ConfigError as e:
+            except (ConfigError, UnknownNameError) as e:
                 raise StudyConfigError(f"study: task {spec!r}: {e}") from None
             if self.duration is not None:
                 task = dataclasses.replace(task, duration=self.duration)
@@ -153,7 +171,11 @@ class StudyConfig:
 
     def task_names(self) -> list[str]:
         """Names of the study's tasks (a file's `name` key for a task given as a path)."""
-        return [t.name for t in self.load_tasks().values()] if any(_is_path(t) for t in self.tasks) else list(self.tasks)
+        return (
+            [t.name for t in self.load_tasks().values()]
+            if any(_is_path(t) for t in self.tasks)
+            else list(self.tasks)
+        )
 
     @property
     def episodes(self) -> int:
@@ -170,7 +192,9 @@ class StudyConfig:
     def from_dict(cls, data: Mapping[str, Any], source: str = "study") -> StudyConfig:
         """From a mapping such as a parsed study.json or study TOML; unknown keys are errors."""
         if not isinstance(data, Mapping):
-            raise StudyConfigError(f"{source}: expected a table of study parameters, got {type(data).__name__}")
+            raise StudyConfigError(
+                f"{source}: expected a table of study parameters, got {type(data).__name__}"
+            )
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -179,13 +203,17 @@ class StudyConfig:
         for key in ("tasks", "strategies"):
             if key in kwargs:
                 if not isinstance(kwargs[key], list | tuple):
-                    raise StudyConfigError(f"{source}: key '{key}' must be a list of names, got {kwargs[key]!r}")
+                    raise StudyConfigError(
+                        f"{source}: key '{key}' must be a list of names, got {kwargs[key]!r}"
+                    )
                 kwargs[key] = tuple(kwargs[key])
         if kwargs.get("familiarization") == "":
             kwargs["familiarization"] = None
         try:
             return cls(**kwargs)
         except StudyConfigError as e:
+            if source == "study":
+                raise
             raise StudyConfigError(str(e).replace("study: ", f"{source}: key ", 1)) from None
 
     @classmethod

@@ -44,7 +44,6 @@ RESULTS_CSV = "results.csv"
 RESULTS_PARQUET = "results.parquet"
 PARTICIPANTS_CSV = "participants.csv"
 LOGS = "logs"
-LOCK = ".study.lock"
 FORMAT = "phri-study"
 FORMAT_VERSION = 1
 
@@ -157,32 +156,40 @@ def read_manifest(run_dir: str | Path) -> tuple[StudyConfig, dict[str, Any]] | N
     try:
         manifest = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise StudyFileError(f"{path}: not a readable study manifest ({e}); the folder was left untouched") from None
+        raise StudyFileError(
+            f"{path}: not a readable study manifest ({e}); the folder was left untouched"
+        ) from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise StudyFileError(f"{path}: not a phri study manifest (key 'format' must be {FORMAT!r})")
     if manifest.get("version") != FORMAT_VERSION:
-        raise StudyFileError(f"{path}: key 'version' must be {FORMAT_VERSION}, got {manifest.get('version')!r}")
+        raise StudyFileError(
+            f"{path}: key 'version' must be {FORMAT_VERSION}, got {manifest.get('version')!r}"
+        )
     try:
-        config = StudyConfig.from_dict(manifest.get("config"), f"{path}: config")
+        config = StudyConfig.from_dict(manifest.get("config"), f"{path}: config")  # type: ignore[arg-type]
     except ValueError as e:
         raise StudyFileError(f"{e} (the folder was left untouched)") from None
     return config, manifest
 
 
 def _differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
-    return [f"{k}: {a.get(k)!r} here, {b.get(k)!r} asked" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    return [
+        f"{k}: {a.get(k)!r} here, {b.get(k)!r} asked" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)
+    ]
 
 
 class ResultStore:
-    """A study folder opened for writing (one writer at a time: a lock file guards it).
+    """A study folder opened for writing (one writer at a time: an advisory lock on the folder).
 
     Use :meth:`open`; then :meth:`record` each finished episode and :meth:`export` the Parquet table."""
 
-    def __init__(self, run_dir: Path, config: StudyConfig, specs: list[EpisodeSpec], rows: list[dict[str, Any]]):
+    def __init__(
+        self, run_dir: Path, config: StudyConfig, specs: list[EpisodeSpec], rows: list[dict[str, Any]]
+    ):
         self.run_dir, self.config, self.specs = run_dir, config, specs
         self._index = {s.key: s for s in specs}
         self.rows: dict[tuple[Any, ...], dict[str, Any]] = {tuple(r[k] for k in KEY): r for r in rows}
-        self._lock_file: Any = None
+        self._lock_fd: int | None = None
         self.log_width = max(2, len(str(config.participants)))
 
     # -- opening ---------------------------------------------------------------------------------
@@ -199,11 +206,13 @@ class ResultStore:
             raise StudyFileError(f"{run_dir}: exists and is not a folder")
         existing = read_manifest(run_dir)
         if existing is None:
-            leftovers = [n for n in (RESULTS_CSV, RESULTS_PARQUET, LOGS, PARTICIPANTS_CSV) if (run_dir / n).exists()]
+            leftovers = [
+                n for n in (RESULTS_CSV, RESULTS_PARQUET, LOGS, PARTICIPANTS_CSV) if (run_dir / n).exists()
+            ]
             if leftovers:
                 raise StudyFileError(
-                    f"{run_dir}: holds {', '.join(leftovers)} but no {MANIFEST}: not a phri study folder or a "
-                    "damaged one; choose an empty folder (nothing was changed)"
+                    f"{run_dir}: holds {', '.join(leftovers)} but no {MANIFEST}: not a phri study folder or "
+                    "a damaged one; choose an empty folder (nothing was changed)"
                 )
             config = config or StudyConfig()
         else:
@@ -211,8 +220,9 @@ class ResultStore:
             if config is None:
                 config = found
             elif config != found:
+                differences = "; ".join(_differences(found.to_dict(), config.to_dict()))
                 raise StudyMismatchError(
-                    f"{run_dir}: holds another study's results ({'; '.join(_differences(found.to_dict(), config.to_dict()))}). "
+                    f"{run_dir}: holds another study's results ({differences}). "
                     "Run it into a new folder, or resume this one without study options; nothing was changed"
                 )
             digests = config.task_digests()
@@ -222,6 +232,7 @@ class ResultStore:
                     f"{run_dir}: the task file(s) {changed} changed since this study started; "
                     "its results would mix two task definitions (nothing was changed)"
                 )
+        config.load_tasks()  # every task file readable before anything is written
         run_dir.mkdir(parents=True, exist_ok=True)
         store = cls(run_dir, config, schedule(config), [])
         store._lock()
@@ -235,17 +246,20 @@ class ResultStore:
         return store
 
     def _lock(self) -> None:
-        self._lock_file = open(self.run_dir / LOCK, "a+")  # noqa: SIM115 - held until close()
+        """An advisory lock on the folder itself (no lock file is left behind)."""
         try:
             import fcntl
         except ImportError:  # pragma: no cover - Windows: no advisory lock
             return
+        self._lock_fd = os.open(self.run_dir, os.O_RDONLY)
         try:
-            fcntl.flock(self._lock_file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            self._lock_file.close()
-            self._lock_file = None
-            raise StudyLockedError(f"{self.run_dir}: another process is running a study into this folder") from None
+            os.close(self._lock_fd)
+            self._lock_fd = None
+            raise StudyLockedError(
+                f"{self.run_dir}: another process is running a study into this folder"
+            ) from None
 
     def _create(self) -> None:
         from phri import __version__
@@ -275,16 +289,22 @@ class ResultStore:
     def _load(self) -> None:
         path = self.run_dir / RESULTS_CSV
         if not path.exists():
-            raise StudyFileError(f"{path}: missing although {MANIFEST} is there; the folder is damaged (nothing was changed)")
+            raise StudyFileError(
+                f"{path}: missing although {MANIFEST} is there; the folder is damaged (nothing was changed)"
+            )
         text = path.read_text(encoding="utf-8")
         rows = _parse_rows(path, text)
         for n, row in enumerate(rows, start=2):
             key = tuple(row[k] for k in KEY)
             spec = self._index.get(key)  # type: ignore[arg-type]
             if spec is None or spec.seed != row["seed"] or spec.order != row["order"]:
-                raise StudyFileError(f"{path}: line {n}: an episode {dict(zip(KEY, key, strict=True))} that is not in this study")
+                raise StudyFileError(
+                    f"{path}: line {n}: an episode {dict(zip(KEY, key, strict=True))} not in this study"
+                )
             if key in self.rows:
-                raise StudyFileError(f"{path}: line {n}: episode {dict(zip(KEY, key, strict=True))} is recorded twice")
+                raise StudyFileError(
+                    f"{path}: line {n}: episode {dict(zip(KEY, key, strict=True))} is recorded twice"
+                )
             self.rows[key] = row
         if not text.endswith("\n"):
             # A row torn by a kill: it was never complete, so its episode is run again.
@@ -339,14 +359,16 @@ class ResultStore:
         table.to_parquet(buffer, index=False)
         _write_atomic(self.run_dir / RESULTS_PARQUET, buffer.getvalue())
         if sort_csv:
-            text = _format_header() + "".join(_format_row(self.rows[s.key]) for s in self.specs if s.key in self.rows)
+            text = _format_header() + "".join(
+                _format_row(self.rows[s.key]) for s in self.specs if s.key in self.rows
+            )
             if (self.run_dir / RESULTS_CSV).read_text(encoding="utf-8") != text:
                 _write_atomic(self.run_dir / RESULTS_CSV, text.encode("utf-8"))
 
     def close(self) -> None:
-        if self._lock_file is not None:
-            self._lock_file.close()
-            self._lock_file = None
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)  # closing the descriptor releases the lock
+            self._lock_fd = None
 
     def __enter__(self) -> ResultStore:
         return self

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from phri.exceptions import InvalidParameterError
-from phri.study.parallel import make_backend
+from phri.study.parallel import check_backend, make_backend
 from phri.study.protocol import EpisodeSpec, StudyConfig
 from phri.study.results import ResultStore
 
@@ -66,6 +66,7 @@ def run_study(
         raise InvalidParameterError(f"max_episodes must be >= 0, got {max_episodes}")
     if between_strategies is not None and backend != "serial":
         raise InvalidParameterError("between_strategies (the questionnaire) needs backend='serial'")
+    check_backend(backend)  # before the folder is touched
     began = time.perf_counter()
     store = ResultStore.open(run_dir, config)
     config = store.config

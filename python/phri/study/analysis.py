@@ -1,0 +1,147 @@
+"""Statistics of the objective measures (paper §4.2), with statsmodels.
+
+Measures: effort [N·m], interaction time [s], and the task cost *relative to the desired behaviour*,
+``cost_error = |cost − desired_cost|`` (the paper's footnote 2: the absolute difference of the task
+feature's value from that of the optimal trajectory).
+
+- :func:`descriptives`: mean and SD (ddof = 1) per task and strategy.
+- :func:`factorial_anova`: the paper's analysis — a two-way ANOVA with strategy and attempt as
+  between factors over the pooled trials of the experimental tasks (familiarization left out):
+  with 10 participants × 3 tasks × 2 strategies × 2 attempts = 120 observations it has the paper's
+  F(1, 116) form. It ignores that trials of one participant are correlated.
+- :func:`rm_anova`: the repeated-measures version (statsmodels ``AnovaRM``) with participant as the
+  subject and strategy × attempt within; each participant's trials are averaged over the tasks first,
+  so it has F(1, P − 1) form.
+- :func:`task_tests`: that repeated-measures ANOVA per task (the asterisks of Fig. 4 and 5).
+
+Effect sizes are partial η² = SS_effect / (SS_effect + SS_error); for the repeated-measures ANOVA,
+whose table gives F and the degrees of freedom only, the identical F·df₁ / (F·df₁ + df₂).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "MEASURES",
+    "descriptives",
+    "factorial_anova",
+    "prepare",
+    "rm_anova",
+    "task_tests",
+]
+
+#: Analysed columns and their labels.
+MEASURES: dict[str, str] = {
+    "effort": "effort [N·m]",
+    "interaction_time": "interaction time [s]",
+    "cost_error": "|cost − desired cost|",
+}
+ANOVA_COLUMNS = ["measure", "effect", "df1", "df2", "F", "p", "partial_eta_sq"]
+
+
+def prepare(table: pd.DataFrame) -> pd.DataFrame:
+    """The episodes that completed (status "ok"), with ``cost_error = |cost − desired_cost|``."""
+    ok = table[table["status"] == "ok"].copy()
+    ok["cost_error"] = (ok["cost"] - ok["desired_cost"]).abs()
+    for column in ("strategy", "task"):
+        ok[column] = ok[column].astype(object)
+    return ok
+
+
+def descriptives(
+    data: pd.DataFrame, measures: Sequence[str] = (*MEASURES, "cost", "desired_cost")
+) -> pd.DataFrame:
+    """Mean, SD (ddof = 1) and count per task and strategy, tasks in their study order."""
+    tasks = list(dict.fromkeys(data["task"]))
+    grouped = data.groupby(["task", "strategy"], sort=False)[list(measures)]
+    out = grouped.agg(["mean", "std"])
+    out.columns = [f"{m}_{s if s == 'mean' else 'sd'}" for m, s in out.columns]
+    out.insert(0, "n", grouped.size())
+    out = out.reset_index()
+    out["task"] = pd.Categorical(out["task"], categories=tasks, ordered=True)
+    return out.sort_values(["task", "strategy"]).reset_index(drop=True).astype({"task": object})
+
+
+def _partial_eta_sq(f: float, df1: float, df2: float) -> float:
+    return float(f * df1 / (f * df1 + df2)) if np.isfinite(f) else float("nan")
+
+
+def _factors(data: pd.DataFrame, factors: Sequence[str]) -> list[str]:
+    """The factors that have at least two levels in `data`."""
+    return [f for f in factors if data[f].nunique() > 1]
+
+
+def factorial_anova(
+    data: pd.DataFrame, measure: str, factors: Sequence[str] = ("strategy", "attempt")
+) -> pd.DataFrame:
+    """Between-factors ANOVA (statsmodels OLS, type II sums of squares) of `measure` over the rows of
+    `data` — pass the pooled trials of the experimental tasks for the paper's F(1, 116) analysis."""
+    import statsmodels.formula.api as smf
+    from statsmodels.stats.anova import anova_lm
+
+    used = _factors(data, factors)
+    if not used or len(data) <= 2 ** len(used):
+        return pd.DataFrame(columns=ANOVA_COLUMNS)
+    formula = f"{measure} ~ " + " * ".join(f"C({f})" for f in used)
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)  # zero residual variance: F is inf or NaN
+        model = smf.ols(formula, data=data.astype({f: str for f in used})).fit()
+        table = anova_lm(model, typ=2)
+    ss_error, df_error = float(table.loc["Residual", "sum_sq"]), float(table.loc["Residual", "df"])
+    rows = []
+    for effect, r in table.drop(index="Residual").iterrows():
+        ss = float(r["sum_sq"])
+        eta = ss / (ss + ss_error) if ss + ss_error > 0 else float("nan")
+        name = str(effect).replace("C(", "").replace(")", "")
+        rows.append([measure, name, float(r["df"]), df_error, float(r["F"]), float(r["PR(>F)"]), eta])
+    return pd.DataFrame(rows, columns=ANOVA_COLUMNS)
+
+
+def rm_anova(
+    data: pd.DataFrame,
+    measure: str,
+    within: Sequence[str] = ("strategy", "attempt"),
+    subject: str = "participant",
+) -> pd.DataFrame:
+    """Repeated-measures ANOVA (statsmodels AnovaRM) of `measure`, `subject` as the subject and the
+    factors `within` (those with a single level are dropped). Each subject's observations per cell are
+    averaged first (e.g. over tasks). Subjects missing a cell (failed episodes) are left out."""
+    from statsmodels.stats.anova import AnovaRM
+
+    used = _factors(data, within)
+    if not used:
+        return pd.DataFrame(columns=ANOVA_COLUMNS)
+    cells = data.groupby([subject, *used], sort=True)[measure].mean().reset_index()
+    n_cells = int(np.prod([cells[f].nunique() for f in used]))
+    complete = cells.groupby(subject)[measure].count() == n_cells
+    cells = cells[cells[subject].isin(complete[complete].index)]
+    if cells[subject].nunique() < 2:
+        return pd.DataFrame(columns=ANOVA_COLUMNS)
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        table = AnovaRM(cells, measure, subject, within=list(used)).fit().anova_table
+    rows = []
+    for effect, r in table.iterrows():
+        f, df1, df2 = float(r["F Value"]), float(r["Num DF"]), float(r["Den DF"])
+        rows.append([measure, str(effect), df1, df2, f, float(r["Pr > F"]), _partial_eta_sq(f, df1, df2)])
+    return pd.DataFrame(rows, columns=ANOVA_COLUMNS)
+
+
+def task_tests(data: pd.DataFrame, measures: Sequence[str] = tuple(MEASURES)) -> pd.DataFrame:
+    """Per task and measure, the repeated-measures ANOVA (strategy × attempt within participants);
+    a row per effect with a `task` column."""
+    frames = []
+    for task in dict.fromkeys(data["task"]):
+        for measure in measures:
+            t = rm_anova(data[data["task"] == task], measure)
+            if len(t):
+                frames.append(t.assign(task=task))
+    if not frames:
+        return pd.DataFrame(columns=["task", *ANOVA_COLUMNS])
+    out = pd.concat(frames, ignore_index=True)
+    return out[["task", *ANOVA_COLUMNS]]

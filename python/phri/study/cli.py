@@ -1,0 +1,214 @@
+"""Command-line front ends: ``phri study``, ``phri report`` and ``phri questionnaire``.
+
+``register(subparsers)`` adds the three subcommands to phri's main parser; each sets ``run`` (call
+``args.run(args)``: an exit code; errors are printed as ``phri <command>: error: ...`` and give 2).
+``python -m phri.study`` runs them without phri's main CLI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from phri.exceptions import PhriError
+
+__all__ = ["main", "register"]
+
+_STUDY_KEYS = (
+    "participants", "attempts", "seed", "tasks", "familiarization", "duration", "waypoints",
+    "sample_rate", "sensor_noise", "rule",
+)  # fmt: skip
+
+
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(t.strip() for t in text.split(",") if t.strip())
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Adds ``study``, ``report`` and ``questionnaire`` to `subparsers`."""
+    s = subparsers.add_parser(
+        "study",
+        help="run (or resume) the simulated user study into a folder",
+        description="Runs the paper's user study with simulated participants into RUN_DIR: per participant "
+        "and strategy (order counterbalanced) the familiarization task then tasks 1-3, each attempted twice. "
+        "Writes results.csv/results.parquet (a row per episode) and logs/*.npz as it goes; running it "
+        "again on the same folder resumes where it stopped. Without study options, a folder's own study "
+        "is resumed.",
+    )
+    s.add_argument("run_dir", type=Path, help="study folder (created if missing)")
+    g = s.add_argument_group("the study (defaults: the paper's)")
+    g.add_argument(
+        "--config", type=Path, help="study TOML file (keys as these options, e.g. participants = 10)"
+    )
+    g.add_argument("--participants", type=int, help="number of simulated participants (default 10)")
+    g.add_argument("--attempts", type=int, help="attempts per task and strategy (default 2)")
+    g.add_argument("--seed", type=int, help="study seed (default 0)")
+    g.add_argument(
+        "--tasks",
+        type=_names,
+        help="comma-separated task names or TOML files, familiarization first "
+        "(default human,coffee,table,laptop)",
+    )
+    g.add_argument(
+        "--familiarization",
+        help="the familiarization task, or 'none' (default human when it is among the tasks)",
+    )
+    g.add_argument("--duration", type=float, help="override every task's duration [s] (the study's: 15)")
+    g.add_argument("--waypoints", type=int, help="override every task's number of plan waypoints")
+    g.add_argument("--sample-rate", type=float, help="torque sampling rate [Hz] (default 10)")
+    g.add_argument("--sensor-noise", type=float, help="torque sensor noise [N·m] (default 0.1)")
+    g.add_argument("--rule", choices=("all", "max", "confidence"), help="weight-update rule (default all)")
+    x = s.add_argument_group("execution (does not change the results)")
+    x.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
+                   help="where episodes run (default: a local process pool)")  # fmt: skip
+    x.add_argument("--workers", type=int, help="parallel workers (default: the CPUs available)")
+    x.add_argument(
+        "--address", help="Ray cluster address, e.g. 'auto' (backend ray; default: a local instance)"
+    )
+    x.add_argument("--max-episodes", type=int, help="stop after this many new episodes (resume later)")
+    x.add_argument("--ask", action="store_true",
+                   help="ask the Table 1 questionnaire on the terminal after each participant's strategy "
+                   "(runs serially; answers go to RUN_DIR/questionnaire.csv)")  # fmt: skip
+    x.add_argument("--no-progress", action="store_true", help="no progress bar")
+    s.set_defaults(run=cmd_study)
+
+    r = subparsers.add_parser(
+        "report",
+        help="statistics, figures and a Markdown report of a study folder",
+        description="Analyses RUN_DIR: mean and SD per task and strategy, the paper's factorial ANOVA and a "
+        "repeated-measures ANOVA with effect sizes, Fig. 4 and 5 as PNG, Table 1 if questionnaire answers "
+        "exist. Writes RUN_DIR/report/report.md.",
+    )
+    r.add_argument("run_dir", type=Path, help="study folder written by `phri study`")
+    r.add_argument("--out", type=Path, help="output folder (default RUN_DIR/report)")
+    r.add_argument(
+        "--questionnaire", type=Path, help="Table 1 answers CSV (default RUN_DIR/questionnaire.csv)"
+    )
+    r.add_argument(
+        "--participant", type=int, help="participant shown in the path figure (default: the first)"
+    )
+    r.add_argument("--task", help="task shown in the path figure (default laptop)")
+    r.set_defaults(run=cmd_report)
+
+    q = subparsers.add_parser(
+        "questionnaire",
+        help="ask or import the Table 1 questionnaire",
+        description="Asks the ten Likert items of the paper's Table 1 on the terminal for one participant "
+        "and strategy, or imports a CSV (participant,strategy,q1..q10; raw answers 1-7), into "
+        "RUN_DIR/questionnaire.csv. Existing answers are never changed.",
+    )
+    q.add_argument("run_dir", type=Path, help="study folder")
+    how = q.add_mutually_exclusive_group(required=True)
+    how.add_argument("--participant", type=int, help="ask this participant (with --strategy)")
+    how.add_argument("--import", dest="import_csv", type=Path, help="import answers from this CSV")
+    q.add_argument("--strategy", help="the strategy the participant just used")
+    q.set_defaults(run=cmd_questionnaire)
+
+
+def _study_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    from phri.study.protocol import StudyConfig
+
+    given = {k: getattr(args, k) for k in _STUDY_KEYS if getattr(args, k) is not None}
+    if "familiarization" in given and given["familiarization"].lower() in ("none", ""):
+        given["familiarization"] = None
+    if args.config is None and not given:
+        return None
+    base = StudyConfig.from_toml(args.config).to_dict() if args.config is not None else {}
+    if "tasks" in given and "familiarization" not in given and "familiarization" not in base:
+        given["familiarization"] = given["tasks"][0] if given["tasks"][0] == "human" else None
+    return StudyConfig.from_dict({**base, **given}, str(args.config) if args.config is not None else "study")
+
+
+def _fail(command: str, error: BaseException) -> int:
+    print(f"phri {command}: error: {error}", file=sys.stderr)
+    return 2
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    from phri.study import questionnaire as q
+    from phri.study.report import QUESTIONNAIRE_CSV
+    from phri.study.run import run_study
+
+    between = None
+    if args.ask:
+
+        def between(participant: int, strategy: str) -> None:
+            answers = q.ask(participant, strategy)
+            q.append_response(args.run_dir / QUESTIONNAIRE_CSV, participant, strategy, answers)
+
+    try:
+        config = _study_config(args)
+        run = run_study(
+            args.run_dir, config, backend="serial" if args.ask else args.backend, workers=args.workers,
+            address=args.address, max_episodes=args.max_episodes, progress=not args.no_progress,
+            between_strategies=between,
+        )  # fmt: skip
+    except (PhriError, ImportError, FileExistsError) as e:
+        return _fail("study", e)
+    except KeyboardInterrupt:
+        print(
+            f"\nphri study: interrupted; every finished episode is kept. Run `phri study {args.run_dir}` "
+            "to resume.",
+            file=sys.stderr,
+        )
+        return 130
+    minutes, seconds = divmod(run.elapsed, 60)
+    print(
+        f"{run.done} of {run.total} episodes recorded ({run.ran} run now with {run.workers or 0} "
+        f"{run.backend} worker(s) in {int(minutes)} min {seconds:.1f} s) -> {args.run_dir / 'results.csv'}"
+    )
+    if run.complete:
+        print(f"next: phri report {args.run_dir}")
+    else:
+        print(f"incomplete: run `phri study {args.run_dir}` again to resume")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from phri.study.report import write_report
+
+    try:
+        path = write_report(
+            args.run_dir,
+            args.out,
+            questionnaire=args.questionnaire,
+            participant=args.participant,
+            task=args.task,
+        )
+    except PhriError as e:
+        return _fail("report", e)
+    print(f"report: {path}")
+    return 0
+
+
+def cmd_questionnaire(args: argparse.Namespace) -> int:
+    from phri.study import questionnaire as q
+    from phri.study.errors import QuestionnaireError
+    from phri.study.report import QUESTIONNAIRE_CSV
+
+    target = args.run_dir / QUESTIONNAIRE_CSV
+    try:
+        if not args.run_dir.is_dir():
+            raise QuestionnaireError(f"{args.run_dir}: no such study folder")
+        if args.import_csv is not None:
+            added = q.import_responses(args.import_csv, target)
+            print(f"{added} questionnaire(s) added to {target}")
+        else:
+            if not args.strategy:
+                raise QuestionnaireError("questionnaire: --participant needs --strategy")
+            answers = q.ask(args.participant, args.strategy)
+            q.append_response(target, args.participant, args.strategy, answers)
+            print(f"saved to {target}")
+    except PhriError as e:
+        return _fail("questionnaire", e)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m phri.study {study,report,questionnaire} ...``"""
+    parser = argparse.ArgumentParser(prog="python -m phri.study", description="phri's user study")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return int(args.run(args))

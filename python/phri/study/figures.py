@@ -1,0 +1,208 @@
+"""The study's figures as PNG (matplotlib, Agg backend): the paper's Fig. 4 and Fig. 5."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from phri.config import Scene
+
+__all__ = ["COLORS", "plot_cost", "plot_effort_time", "plot_paths", "read_paths"]
+
+#: The paper's colours: impedance grey, learning orange, desired blue.
+COLORS = {"impedance": "#8c8c8c", "learning": "#f28e2b", "desired": "#1f77b4"}
+#: p below this gets an asterisk (the paper's convention: p < 0.0001).
+STAR = 1e-4
+LINK_7 = "j2s7s300_link_7"
+
+
+def _pyplot():  # type: ignore[no-untyped-def]
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _task_label(task: str, familiarization: str | None, tasks: Sequence[str]) -> str:
+    if task == familiarization:
+        return f"{task}\n(familiarization)"
+    experimental = [t for t in tasks if t != familiarization]
+    return f"{task}\n(task {experimental.index(task) + 1})"
+
+
+def _star_p(tests: pd.DataFrame | None, task: str, measure: str) -> float:
+    if tests is None or not len(tests):
+        return float("nan")
+    hit = tests[(tests["task"] == task) & (tests["measure"] == measure) & (tests["effect"] == "strategy")]
+    return float(hit["p"].iloc[0]) if len(hit) else float("nan")
+
+
+def _bars(
+    ax, desc: pd.DataFrame, measure: str, tasks: list[str], strategies: list[str], tests, labels
+) -> None:  # type: ignore[no-untyped-def]
+    width = 0.8 / len(strategies)
+    x = np.arange(len(tasks))
+    top = 0.0
+    for i, s in enumerate(strategies):
+        sub = desc[desc["strategy"] == s].set_index("task").reindex(tasks)
+        mean, sd = sub[f"{measure}_mean"].to_numpy(float), np.nan_to_num(sub[f"{measure}_sd"].to_numpy(float))
+        ax.bar(x + (i - (len(strategies) - 1) / 2) * width, mean, width, yerr=sd, capsize=3,
+               color=COLORS.get(s), label=s, edgecolor="black", linewidth=0.5)  # fmt: skip
+        top = max(top, float(np.nanmax(mean + sd)) if np.isfinite(mean).any() else 0.0)
+    for j, task in enumerate(tasks):
+        if _star_p(tests, task, measure) < STAR:
+            ax.text(x[j], top * 1.04, "*", ha="center", va="bottom", fontsize=16, fontweight="bold")
+    ax.set_xticks(x, labels)
+    ax.set_ylim(0, top * 1.15 if top > 0 else 1.0)
+    ax.grid(axis="y", alpha=0.3)
+
+
+def plot_effort_time(
+    desc: pd.DataFrame,
+    path: str | Path,
+    *,
+    tests: pd.DataFrame | None = None,
+    familiarization: str | None = None,
+) -> Path:
+    """Fig. 4: mean (± SD) effort and interaction time per task and strategy."""
+    plt = _pyplot()
+    tasks = list(dict.fromkeys(desc["task"]))
+    strategies = list(dict.fromkeys(desc["strategy"]))
+    labels = [_task_label(t, familiarization, tasks) for t in tasks]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), layout="constrained")
+    for ax, measure, title in (
+        (axes[0], "effort", "Effort: Σ‖u_H‖₁ over interaction samples [N·m]"),
+        (axes[1], "interaction_time", "Interaction time [s]"),
+    ):
+        _bars(ax, desc, measure, tasks, strategies, tests, labels)
+        ax.set_title(title, fontsize=11)
+    handles, names = axes[0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="outside lower center", ncols=len(names), title="strategy")
+    fig.suptitle("Effort and interaction time by task and strategy (mean ± SD; * p < 0.0001)", fontsize=12)
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_cost(
+    desc: pd.DataFrame,
+    path: str | Path,
+    *,
+    tests: pd.DataFrame | None = None,
+    familiarization: str | None = None,
+) -> Path:
+    """Fig. 5 (left): mean (± SD) task cost per strategy against the desired behaviour's cost, one
+    panel per task (the tasks' features have different units)."""
+    plt = _pyplot()
+    tasks = list(dict.fromkeys(desc["task"]))
+    strategies = list(dict.fromkeys(desc["strategy"]))
+    fig, axes = plt.subplots(
+        1, len(tasks), figsize=(3.0 * len(tasks) + 1, 4.0), layout="constrained", squeeze=False
+    )
+    for ax, task in zip(axes[0], tasks, strict=True):
+        sub = desc[desc["task"] == task].set_index("strategy").reindex(strategies)
+        mean, sd = sub["cost_mean"].to_numpy(float), np.nan_to_num(sub["cost_sd"].to_numpy(float))
+        desired = float(sub["desired_cost_mean"].mean())
+        x = np.arange(len(strategies) + 1)
+        ax.bar(x[:-1], mean, 0.7, yerr=sd, capsize=3, color=[COLORS.get(s) for s in strategies],
+               edgecolor="black", linewidth=0.5)  # fmt: skip
+        ax.bar(x[-1], desired, 0.7, color=COLORS["desired"], edgecolor="black", linewidth=0.5)
+        ax.set_xticks(x, [*strategies, "desired"])
+        top = float(np.nanmax(np.append(mean + sd, desired)))
+        if _star_p(tests, task, "cost_error") < STAR:
+            ax.text(0.5, top * 1.04, "*", ha="center", va="bottom", fontsize=16, fontweight="bold")
+        ax.set_ylim(0, top * 1.15 if top > 0 else 1.0)
+        ax.set_title(_task_label(task, familiarization, tasks).replace("\n", " "), fontsize=10)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0][0].set_ylabel("task-feature cost of the executed path")
+    fig.suptitle(
+        "Task cost against the desired behaviour's cost (mean ± SD; * p < 0.0001 on |cost − desired|)",
+        fontsize=11,
+    )
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def read_paths(log: str | Path) -> dict[str, np.ndarray]:
+    """From an episode log: time `t` [s], the executed link_7 path at the log rate, and the desired
+    plan's link_7 path sampled at the same times (cubic interpolation of its waypoints), each (N, 3) [m]."""
+    from phri._phri import Robot, TimedTrajectory
+
+    with np.load(log) as data:
+        t, q, desired = data["t"], data["q"], data["desired"]
+    robot = Robot.jaco2()
+    duration = float(t[-1]) if len(t) > 1 else 1.0
+    plan = TimedTrajectory(desired, duration)
+    q_desired = plan.sample_many(t)[0]
+    return {
+        "t": t,
+        "executed": robot.frame_pose(LINK_7, q)[:, :3, 3],
+        "desired": robot.frame_pose(LINK_7, q_desired)[:, :3, 3],
+    }
+
+
+def plot_paths(
+    logs: Mapping[str, str | Path],
+    path: str | Path,
+    *,
+    scene: Scene | None = None,
+    task: str = "",
+    title: str = "",
+) -> Path:
+    """Fig. 5 (right): the cup's (link_7) path for each strategy against the desired path — seen
+    from above (x, y) and its height over time. `logs` maps a strategy to its episode log."""
+    plt = _pyplot()
+    scene = scene or Scene()
+    fig, (top, side) = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    desired_drawn = False
+    for strategy, log in logs.items():
+        p = read_paths(log)
+        if not desired_drawn:
+            d = p["desired"]
+            top.plot(d[:, 0], d[:, 1], color=COLORS["desired"], lw=2.5, label="desired")
+            side.plot(p["t"], d[:, 2], color=COLORS["desired"], lw=2.5, label="desired")
+            top.plot(*d[0, :2], "ko", ms=5)
+            top.annotate("start", d[0, :2], textcoords="offset points", xytext=(5, 5), fontsize=9)
+            top.plot(*d[-1, :2], "ks", ms=5)
+            top.annotate("goal", d[-1, :2], textcoords="offset points", xytext=(5, 5), fontsize=9)
+            desired_drawn = True
+        e = p["executed"]
+        top.plot(e[:, 0], e[:, 1], color=COLORS.get(strategy), lw=1.8, label=strategy)
+        side.plot(p["t"], e[:, 2], color=COLORS.get(strategy), lw=1.8, label=strategy)
+    import matplotlib.patches as patches
+
+    if task in ("laptop", "human"):
+        cx, cy = scene.laptop_center if task == "laptop" else scene.human_center
+        top.add_patch(patches.Circle((cx, cy), scene.radius, fill=False, ls="--", color="red", lw=1))
+        top.annotate(f"{task} keep-out ({scene.radius} m)", (cx, cy - scene.radius), ha="center",
+                     va="top", fontsize=9, color="red")  # fmt: skip
+    if task == "laptop":
+        lx, ly = scene.laptop_center
+        top.add_patch(patches.Rectangle((lx - 0.115, ly + 0.1 - 0.15), 0.23, 0.30, color="0.2", alpha=0.6))
+    side.axhline(scene.table_height, color="saddlebrown", lw=1.5)
+    side.annotate("table top", (0, scene.table_height), textcoords="offset points", xytext=(3, 3), fontsize=9,
+                  color="saddlebrown")  # fmt: skip
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_xlabel("x [m]")
+    top.set_ylabel("y [m]")
+    top.set_title("cup (link_7) path seen from above")
+    side.set_xlabel("time [s]")
+    side.set_ylabel("height z [m]")
+    side.set_title("cup height over time")
+    for ax in (top, side):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=12)
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

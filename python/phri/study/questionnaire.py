@@ -1,0 +1,309 @@
+"""The paper's Table 1 questionnaire: ten 7-point Likert items after each strategy, four scales.
+
+Items 2, 4, 5, 8 and 10 are negatively worded and reverse-scored (8 − x), so that higher is better on
+every scale: understanding (items 1-4), effort (5-6: higher = less effort), predictability (7-8),
+collaboration (9-10). Per scale:
+
+- reliability by Cronbach's α, computed as Hoyt's ANOVA reliability 1 − MS_residual / MS_respondents
+  from the respondents × items two-way ANOVA (statsmodels OLS + anova_lm), which equals Cronbach's α
+  (Hoyt 1941; Cronbach 1951). Each completed questionnaire (participant × strategy) is a respondent;
+- the scale score is the mean of its (reverse-scored) items;
+- a one-way repeated-measures ANOVA of the score, strategy within participants (statsmodels
+  AnovaRM), F(1, P − 1) as in the paper.
+
+Responses live in a CSV with the columns ``participant,strategy,q1,...,q10`` (raw answers 1-7, not
+reverse-scored), one row per participant and strategy: typed in with :func:`ask` or imported.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from phri.study.errors import QuestionnaireError
+
+__all__ = [
+    "ITEMS",
+    "REVERSED",
+    "SCALES",
+    "append_response",
+    "ask",
+    "import_responses",
+    "cronbach_alpha",
+    "read_responses",
+    "reverse_score",
+    "scale_scores",
+    "table1",
+    "table1_markdown",
+]
+
+#: The ten items of Table 1, in order (item i is ITEMS[i - 1]).
+ITEMS: tuple[str, ...] = (
+    "By the end, the robot understood how I wanted it to do the task.",
+    "Even by the end, the robot still did not know how I wanted it to do the task.",
+    "The robot learned from my corrections.",
+    "The robot did not understand what I was trying to accomplish.",
+    "I had to keep correcting the robot.",
+    "The robot required minimal correction.",
+    "It was easy to anticipate how the robot will respond to my corrections.",
+    "The robot's response to my corrections was surprising.",
+    "The robot worked with me to complete the task.",
+    "The robot did not collaborate with me to complete the task.",
+)
+#: Negatively worded items, reverse-scored as 8 − x.
+REVERSED: tuple[int, ...] = (2, 4, 5, 8, 10)
+#: Scale -> its items (1-based).
+SCALES: dict[str, tuple[int, ...]] = {
+    "understanding": (1, 2, 3, 4),
+    "effort": (5, 6),
+    "predictability": (7, 8),
+    "collaboration": (9, 10),
+}
+ITEM_COLUMNS = tuple(f"q{i}" for i in range(1, len(ITEMS) + 1))
+COLUMNS = ("participant", "strategy", *ITEM_COLUMNS)
+LIKERT = range(1, 8)
+
+
+# -- collecting answers ---------------------------------------------------------------------------
+
+
+def ask(
+    participant: int,
+    strategy: str,
+    *,
+    read: Callable[[str], str] = input,
+    write: Callable[[str], object] = print,
+) -> dict[str, int]:
+    """Asks the ten items on the terminal; an answer outside 1-7 is asked again.
+    Returns ``{"q1": x1, ..., "q10": x10}`` (raw answers)."""
+    write(f"\nQuestionnaire: participant {participant}, strategy '{strategy}'.")
+    write("Answer each statement from 1 (strongly disagree) to 7 (strongly agree).")
+    answers: dict[str, int] = {}
+    for i, (column, item) in enumerate(zip(ITEM_COLUMNS, ITEMS, strict=True), start=1):
+        while True:
+            try:
+                text = read(f"{i:2d}. {item} [1-7]: ").strip()
+            except EOFError:
+                raise QuestionnaireError(
+                    f"questionnaire: input ended at item {i} (participant {participant}, {strategy})"
+                ) from None
+            if text.isdigit() and int(text) in LIKERT:
+                answers[column] = int(text)
+                break
+            write("   please type a whole number from 1 to 7")
+    return answers
+
+
+def append_response(path: str | Path, participant: int, strategy: str, answers: Mapping[str, int]) -> None:
+    """Appends one questionnaire to the CSV `path` (created with its header if missing). A second
+    answer for the same participant and strategy is refused; nothing written is changed."""
+    path = Path(path)
+    row = {"participant": participant, "strategy": strategy, **answers}
+    _validate_row(row, f"{path}: new row")
+    if path.exists():
+        existing = read_responses(path)
+        clash = (existing["participant"] == participant) & (existing["strategy"] == strategy)
+        if clash.any():
+            raise QuestionnaireError(f"{path}: participant {participant} already answered for '{strategy}'")
+        prefix = ""
+    else:
+        prefix = ",".join(COLUMNS) + "\n"
+    buffer = io.StringIO()
+    csv.writer(buffer, lineterminator="\n").writerow([row[c] for c in COLUMNS])
+    with open(path, "a", encoding="utf-8", newline="") as f:
+        f.write(prefix + buffer.getvalue())
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def import_responses(source: str | Path, target: str | Path) -> int:
+    """Appends the questionnaires of the CSV `source` to `target`; returns how many were new. Answers
+    already in `target` are skipped if identical; a conflicting answer is an error, raised before
+    anything is written."""
+    incoming = read_responses(source)
+    target = Path(target)
+    existing = read_responses(target) if target.exists() else pd.DataFrame(columns=list(COLUMNS))
+    known = {(int(r["participant"]), str(r["strategy"])): r for r in existing.to_dict("records")}
+    new = []
+    for n, row in enumerate(incoming.to_dict("records"), start=2):
+        key = (int(row["participant"]), str(row["strategy"]))
+        if key in known:
+            if any(int(known[key][c]) != int(row[c]) for c in ITEM_COLUMNS):
+                raise QuestionnaireError(
+                    f"{source}: line {n}: participant {key[0]} ({key[1]}) differs from the answers already "
+                    f"in {target}; nothing was imported"
+                )
+            continue
+        new.append(row)
+    for row in new:
+        append_response(
+            target, int(row["participant"]), str(row["strategy"]), {c: int(row[c]) for c in ITEM_COLUMNS}
+        )
+    return len(new)
+
+
+def _validate_row(row: Mapping[str, object], where: str) -> dict[str, object]:
+    out: dict[str, object] = {}
+    for column in COLUMNS:
+        value = row.get(column)
+        if value is None or (isinstance(value, str) and not value.strip()):
+            raise QuestionnaireError(f"{where}: column '{column}' is missing")
+        if column == "strategy":
+            out[column] = str(value).strip()
+            continue
+        text = str(value).strip()
+        try:
+            number = int(text)
+        except ValueError:
+            raise QuestionnaireError(
+                f"{where}: column '{column}' must be a whole number, got {value!r}"
+            ) from None
+        if column != "participant" and number not in LIKERT:
+            raise QuestionnaireError(f"{where}: column '{column}' must be 1-7 (7-point Likert), got {number}")
+        out[column] = number
+    return out
+
+
+def read_responses(path: str | Path) -> pd.DataFrame:
+    """Reads and validates a questionnaire CSV (columns ``participant,strategy,q1..q10``; extra
+    columns are ignored). Errors name the file, the line and the column."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise QuestionnaireError(f"{path}: cannot read the questionnaire file ({e.strerror})") from None
+    reader = csv.DictReader(io.StringIO(text))
+    missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
+    if missing:
+        raise QuestionnaireError(f"{path}: line 1: missing column(s) {missing}; expected {','.join(COLUMNS)}")
+    rows, seen = [], set()
+    for n, raw in enumerate(reader, start=2):
+        row = _validate_row(raw, f"{path}: line {n}")
+        key = (row["participant"], row["strategy"])
+        if key in seen:
+            raise QuestionnaireError(f"{path}: line {n}: participant {key[0]} answered twice for '{key[1]}'")
+        seen.add(key)
+        rows.append(row)
+    if not rows:
+        raise QuestionnaireError(f"{path}: no responses")
+    return pd.DataFrame(rows, columns=list(COLUMNS)).astype({c: np.int64 for c in COLUMNS if c != "strategy"})
+
+
+# -- scoring --------------------------------------------------------------------------------------
+
+
+def reverse_score(responses: pd.DataFrame) -> pd.DataFrame:
+    """A copy with the negatively worded items (2, 4, 5, 8, 10) replaced by 8 − x."""
+    scored = responses.copy()
+    for i in REVERSED:
+        scored[f"q{i}"] = 8 - scored[f"q{i}"]
+    return scored
+
+
+def scale_scores(responses: pd.DataFrame) -> pd.DataFrame:
+    """Participant, strategy and each scale's score (mean of its reverse-scored items)."""
+    scored = reverse_score(responses)
+    out = scored[["participant", "strategy"]].copy()
+    for scale, items in SCALES.items():
+        out[scale] = scored[[f"q{i}" for i in items]].mean(axis=1)
+    return out
+
+
+def cronbach_alpha(items: pd.DataFrame | np.ndarray) -> float:
+    """Cronbach's α of an (respondents × items) table, as Hoyt's ANOVA reliability
+    1 − MS_residual / MS_respondents of the two-way ANOVA without replication (statsmodels).
+    NaN when it is undefined (fewer than 2 items or respondents, or no variance between respondents)."""
+    import statsmodels.formula.api as smf
+    from statsmodels.stats.anova import anova_lm
+
+    x = np.asarray(items, dtype=float)
+    if x.ndim != 2 or x.shape[0] < 2 or x.shape[1] < 2 or not np.isfinite(x).all():
+        return float("nan")
+    n, k = x.shape
+    long = pd.DataFrame({
+        "score": x.ravel(),
+        "respondent": np.repeat(np.arange(n), k).astype(str),
+        "item": np.tile(np.arange(k), n).astype(str),
+    })  # fmt: skip
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        table = anova_lm(smf.ols("score ~ C(respondent) + C(item)", data=long).fit(), typ=2)
+    ms_respondents = table.loc["C(respondent)", "sum_sq"] / table.loc["C(respondent)", "df"]
+    ms_residual = table.loc["Residual", "sum_sq"] / table.loc["Residual", "df"]
+    if not ms_respondents > 1e-12 * max(1.0, float(np.abs(x).max()) ** 2):
+        return float("nan")
+    return float(1.0 - ms_residual / ms_respondents)
+
+
+def table1(responses: pd.DataFrame, strategies: Sequence[str] = ("impedance", "learning")) -> pd.DataFrame:
+    """The paper's Table 1: per scale its items, Cronbach's α, the mean score per strategy (the
+    least-squares means, equal to the plain means in this balanced design), and the one-way
+    repeated-measures ANOVA (F, its degrees of freedom, p, partial η²). Participants who did not
+    answer for every strategy are left out of the ANOVA only."""
+    from phri.study.analysis import rm_anova
+
+    unknown = sorted(set(responses["strategy"]) - set(strategies))
+    if unknown:
+        raise QuestionnaireError(f"questionnaire: strategies {unknown} are not among {list(strategies)}")
+    scores = scale_scores(responses)
+    scored = reverse_score(responses)
+    rows = []
+    for scale, items in SCALES.items():
+        anova = rm_anova(scores, scale, within=("strategy",))
+        row: dict[str, object] = {
+            "scale": scale,
+            "items": " / ".join(f"{i}{'ᴿ' if i in REVERSED else ''}. {ITEMS[i - 1]}" for i in items),
+            "alpha": cronbach_alpha(scored[[f"q{i}" for i in items]]),
+        }
+        for s in strategies:
+            row[f"mean_{s}"] = float(scores.loc[scores["strategy"] == s, scale].mean())
+        if len(anova):
+            a = anova.iloc[0]
+            row.update(df1=a["df1"], df2=a["df2"], F=a["F"], p=a["p"], partial_eta_sq=a["partial_eta_sq"])
+        else:
+            row.update(df1=np.nan, df2=np.nan, F=np.nan, p=np.nan, partial_eta_sq=np.nan)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _p(p: float) -> str:
+    return "—" if not np.isfinite(p) else ("<.0001" if p < 1e-4 else f"{p:.3f}".lstrip("0"))
+
+
+def table1_markdown(table: pd.DataFrame, strategies: Sequence[str] = ("impedance", "learning")) -> str:
+    """Table 1 as Markdown: scale, questions, α, mean per strategy, F(df1, df2), p."""
+    df = table.dropna(subset=["df2"])
+    dfs = f"F({int(df['df1'].iloc[0])},{int(df['df2'].iloc[0])})" if len(df) else "F"
+    head = [
+        "scale",
+        "questions (ᴿ: reverse-scored)",
+        "Cronbach's α",
+        *(f"{s} mean" for s in strategies),
+        dfs,
+        "p",
+        "partial η²",
+    ]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for _, r in table.iterrows():
+        cells = [
+            str(r["scale"]), str(r["items"]).replace("|", "\\|"), _num(r["alpha"], 2),
+            *(_num(r[f"mean_{s}"], 2) for s in strategies),
+            _num(r["F"], 2), _p(r["p"]), _num(r["partial_eta_sq"], 2),
+        ]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _num(x: object, digits: int) -> str:
+    try:
+        v = float(x)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return "—"
+    return f"{v:.{digits}f}" if np.isfinite(v) else "—"

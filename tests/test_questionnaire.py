@@ -1,0 +1,230 @@
+"""The Table 1 questionnaire: items, reverse scoring, Cronbach's α, the CSV, asking on the terminal,
+the per-scale repeated-measures ANOVA and the Table 1 output."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from phri.exceptions import ConfigError
+from phri.study import questionnaire as q
+from phri.study.cli import main as cli
+from phri.study.errors import QuestionnaireError
+
+HEADER = "participant,strategy," + ",".join(f"q{i}" for i in range(1, 11))
+
+
+def write_csv(path: Path, rows: list[str]) -> Path:
+    path.write_text("\n".join([HEADER, *rows]) + "\n")
+    return path
+
+
+def synthetic(n: int = 10, seed: int = 0) -> pd.DataFrame:
+    """Answers of `n` participants who like learning better (raw, before reverse scoring)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for p in range(1, n + 1):
+        for s, base in (("impedance", 2), ("learning", 5)):
+            answers = {}
+            for i in range(1, 11):
+                x = base if i not in q.REVERSED else 8 - base
+                answers[f"q{i}"] = int(np.clip(x + rng.integers(-1, 2), 1, 7))
+            rows.append({"participant": p, "strategy": s, **answers})
+    return pd.DataFrame(rows)
+
+
+def test_items_and_scales_are_the_papers() -> None:
+    assert len(q.ITEMS) == 10
+    assert q.ITEMS[0].startswith("By the end, the robot understood")
+    assert q.ITEMS[9] == "The robot did not collaborate with me to complete the task."
+    assert q.REVERSED == (2, 4, 5, 8, 10)
+    assert q.SCALES == {
+        "understanding": (1, 2, 3, 4),
+        "effort": (5, 6),
+        "predictability": (7, 8),
+        "collaboration": (9, 10),
+    }
+    assert sorted(i for items in q.SCALES.values() for i in items) == list(range(1, 11))
+
+
+def test_reverse_scoring() -> None:
+    raw = pd.DataFrame(
+        [{"participant": 1, "strategy": "learning", **{f"q{i}": i % 7 + 1 for i in range(1, 11)}}]
+    )
+    scored = q.reverse_score(raw)
+    for i in range(1, 11):
+        expected = 8 - raw[f"q{i}"][0] if i in (2, 4, 5, 8, 10) else raw[f"q{i}"][0]
+        assert scored[f"q{i}"][0] == expected, i
+    assert raw["q2"][0] == 3  # the input is not modified
+    # All 7s: the positive items stay 7, the negative ones become 1.
+    sevens = pd.DataFrame([{"participant": 1, "strategy": "learning", **{f"q{i}": 7 for i in range(1, 11)}}])
+    scores = q.scale_scores(sevens).iloc[0]
+    assert scores["understanding"] == 4.0 and scores["effort"] == 4.0
+    assert scores["predictability"] == 4.0 and scores["collaboration"] == 4.0
+
+
+def test_cronbach_alpha_known_example() -> None:
+    # 5 respondents × 3 items: item variances 2.5, 1.3, 4.3; total-score variance 22.5 →
+    # α = 3/2 · (1 − 8.1/22.5) = 0.96 exactly.
+    x = np.array([[3, 4, 3], [5, 5, 6], [2, 3, 2], [6, 6, 7], [4, 5, 4]], dtype=float)
+    assert x.var(axis=0, ddof=1).tolist() == pytest.approx([2.5, 1.3, 4.3])
+    assert x.sum(axis=1).var(ddof=1) == pytest.approx(22.5)
+    assert q.cronbach_alpha(x) == pytest.approx(0.96, rel=1e-12)
+    # Identical items: α = 1. Uncorrelated items: α near 0 (here negative).
+    assert q.cronbach_alpha(np.repeat(np.arange(6.0)[:, None], 3, axis=1)) == pytest.approx(1.0)
+    assert q.cronbach_alpha(np.array([[1, 3], [2, 1], [3, 2]], dtype=float)) < 0.2
+    # Undefined cases.
+    assert np.isnan(q.cronbach_alpha(np.ones((4, 3))))
+    assert np.isnan(q.cronbach_alpha(x[:, :1]))
+    assert np.isnan(q.cronbach_alpha(x[:1]))
+
+
+def test_cronbach_alpha_matches_the_variance_formula_on_random_data() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        n, k = int(rng.integers(3, 15)), int(rng.integers(2, 6))
+        x = rng.integers(1, 8, (n, k)).astype(float)
+        if x.sum(axis=1).var() == 0:
+            continue
+        formula = k / (k - 1) * (1 - x.var(axis=0, ddof=1).sum() / x.sum(axis=1).var(ddof=1))
+        assert q.cronbach_alpha(x) == pytest.approx(formula, rel=1e-9, abs=1e-12), x
+
+
+def test_csv_import(tmp_path: Path) -> None:
+    path = write_csv(
+        tmp_path / "a.csv", ["1,impedance,1,7,2,6,7,1,3,5,2,6", "1,learning,6,2,7,1,2,6,5,3,6,2"]
+    )
+    responses = q.read_responses(path)
+    assert list(responses.columns) == ["participant", "strategy", *(f"q{i}" for i in range(1, 11))]
+    assert responses["q2"].tolist() == [7, 2] and responses["q2"].dtype == np.int64
+    scores = q.scale_scores(responses)
+    assert scores.loc[0, "understanding"] == pytest.approx((1 + 1 + 2 + 2) / 4)
+    assert scores.loc[1, "understanding"] == pytest.approx((6 + 6 + 7 + 7) / 4)
+    assert scores.loc[0, "effort"] == pytest.approx((1 + 1) / 2)
+    # Extra columns are ignored; column order does not matter.
+    shuffled = tmp_path / "b.csv"
+    backwards = range(10, 0, -1)
+    shuffled.write_text(
+        "note,strategy,participant," + ",".join(f"q{i}" for i in backwards) + "\n"
+        "x,learning,3," + ",".join(str(i % 7 + 1) for i in backwards) + "\n"
+    )
+    assert q.read_responses(shuffled).loc[0, "q10"] == 10 % 7 + 1
+
+
+@pytest.mark.parametrize(
+    ("rows", "match"),
+    [
+        (["1,impedance,1,7,2,6,8,1,3,5,2,6"], r"line 2: column 'q5' must be 1-7"),
+        (["1,impedance,1,7,2,6,0,1,3,5,2,6"], r"line 2: column 'q5' must be 1-7"),
+        (["1,impedance,1,7,2,6,x,1,3,5,2,6"], r"line 2: column 'q5' must be a whole number"),
+        (["1,impedance,1,7,2,6,4.5,1,3,5,2,6"], r"column 'q5' must be a whole number"),
+        (["1,impedance,1,7,2,6,7,1,3,5,2"], r"line 2: column 'q10' is missing"),
+        (["1,,1,7,2,6,7,1,3,5,2,6"], r"column 'strategy' is missing"),
+        (
+            ["1,impedance,1,7,2,6,7,1,3,5,2,6", "1,impedance,1,7,2,6,7,1,3,5,2,6"],
+            r"line 3: participant 1 answered twice",
+        ),
+        ([], "no responses"),
+    ],
+)
+def test_bad_csv_is_a_clear_error(tmp_path: Path, rows: list[str], match: str) -> None:
+    path = write_csv(tmp_path / "bad.csv", rows)
+    with pytest.raises(QuestionnaireError, match=match) as info:
+        q.read_responses(path)
+    assert str(path) in str(info.value) and isinstance(info.value, ConfigError)
+
+
+def test_missing_columns_and_files(tmp_path: Path) -> None:
+    path = tmp_path / "cols.csv"
+    path.write_text("participant,strategy,q1\n1,learning,3\n")
+    with pytest.raises(QuestionnaireError, match=r"missing column\(s\) \['q2'"):
+        q.read_responses(path)
+    with pytest.raises(QuestionnaireError, match="cannot read"):
+        q.read_responses(tmp_path / "none.csv")
+
+
+def test_ask_on_the_terminal(tmp_path: Path) -> None:
+    typed = iter(["4", "8", "seven", "", "7", "1", "2", "3", "4", "5", "6", "7", "1"])
+    shown: list[str] = []
+    answers = q.ask(
+        3, "learning", read=lambda prompt: (shown.append(prompt), next(typed))[1], write=shown.append
+    )
+    assert answers == {
+        "q1": 4,
+        "q2": 7,
+        "q3": 1,
+        "q4": 2,
+        "q5": 3,
+        "q6": 4,
+        "q7": 5,
+        "q8": 6,
+        "q9": 7,
+        "q10": 1,
+    }
+    assert sum("please type a whole number from 1 to 7" in s for s in shown) == 3
+    assert any(q.ITEMS[9] in s for s in shown)
+
+    def ends(prompt: str) -> str:
+        raise EOFError
+
+    with pytest.raises(QuestionnaireError, match="input ended at item 1"):
+        q.ask(1, "impedance", read=ends, write=lambda s: None)
+    # Appending: a header once, one row per questionnaire, no second answer for the same pair.
+    path = tmp_path / "answers.csv"
+    q.append_response(path, 3, "learning", answers)
+    q.append_response(path, 3, "impedance", {**answers, "q1": 1})
+    assert path.read_text().count("participant") == 1
+    assert q.read_responses(path)["q1"].tolist() == [4, 1]
+    before = path.read_bytes()
+    with pytest.raises(QuestionnaireError, match="already answered"):
+        q.append_response(path, 3, "learning", answers)
+    with pytest.raises(QuestionnaireError, match="must be 1-7"):
+        q.append_response(path, 4, "learning", {**answers, "q3": 9})
+    assert path.read_bytes() == before
+
+
+def test_table1_matches_paired_t_tests() -> None:
+    responses = synthetic()
+    table = q.table1(responses)
+    assert table["scale"].tolist() == list(q.SCALES)
+    scores = q.scale_scores(responses)
+    scored = q.reverse_score(responses)
+    for _, row in table.iterrows():
+        s = row["scale"]
+        wide = scores.pivot(index="participant", columns="strategy", values=s)
+        t = stats.ttest_rel(wide["learning"], wide["impedance"])
+        assert (row["df1"], row["df2"]) == (1, 9)  # the paper's F(1, 9)
+        assert row["F"] == pytest.approx(t.statistic**2, rel=1e-9)
+        assert row["p"] == pytest.approx(t.pvalue, rel=1e-6)
+        assert row["mean_learning"] == pytest.approx(wide["learning"].mean())
+        assert row["mean_impedance"] == pytest.approx(wide["impedance"].mean())
+        assert row["alpha"] == pytest.approx(q.cronbach_alpha(scored[[f"q{i}" for i in q.SCALES[s]]]))
+        assert row["mean_learning"] > row["mean_impedance"]
+    text = q.table1_markdown(table)
+    assert "F(1,9)" in text and "<.0001" in text and "2ᴿ. Even by the end" in text
+    assert text.count("\n") == 2 + 4
+    with pytest.raises(QuestionnaireError, match="telepathy"):
+        q.table1(responses.assign(strategy="telepathy"))
+
+
+def test_cli_import_and_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run_dir = tmp_path / "study"
+    run_dir.mkdir()
+    source = tmp_path / "answers.csv"
+    synthetic(4).to_csv(source, index=False)
+    assert cli(["questionnaire", str(run_dir), "--import", str(source)]) == 0
+    assert "8 questionnaire(s) added" in capsys.readouterr().out
+    # Importing again adds nothing; conflicting answers are refused and change nothing.
+    assert cli(["questionnaire", str(run_dir), "--import", str(source)]) == 0
+    assert "0 questionnaire(s) added" in capsys.readouterr().out
+    before = (run_dir / "questionnaire.csv").read_bytes()
+    conflicting = synthetic(4).assign(q1=1)
+    conflicting.to_csv(source, index=False)
+    assert cli(["questionnaire", str(run_dir), "--import", str(source)]) == 2
+    assert "differs from the answers already" in capsys.readouterr().err
+    assert (run_dir / "questionnaire.csv").read_bytes() == before
+    assert cli(["questionnaire", str(tmp_path / "nowhere"), "--import", str(source)]) == 2

@@ -1,0 +1,550 @@
+"""The study protocol, its folder (manifest, incremental table, resume, refusal of a foreign study),
+the backends' agreement, the statistics against hand computations, the report and the CLI."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from phri.exceptions import ConfigError, InvalidParameterError, PhriError
+from phri.study import (
+    COLUMNS,
+    ResultStore,
+    StudyConfig,
+    StudyConfigError,
+    StudyFileError,
+    StudyLockedError,
+    StudyMismatchError,
+    analysis,
+    episode_seed,
+    load_results,
+    participant_params,
+    run_study,
+    schedule,
+    strategy_order,
+)
+from phri.study.cli import main as cli
+from phri.study.parallel import THREAD_ENV, ProcessBackend
+from phri.study.report import write_report
+
+#: A study small enough for CI: 2 participants × 2 strategies × 2 tasks × 2 attempts = 16 episodes of 2 s.
+TINY = StudyConfig(participants=2, attempts=2, seed=7, tasks=("human", "laptop"), duration=2.0, waypoints=5)
+
+
+def table_without_wall_time(run_dir: Path) -> pd.DataFrame:
+    return load_results(run_dir).drop(columns="wall_time")
+
+
+def snapshot(folder: Path) -> dict[str, str]:
+    """Every file under `folder` and the SHA-256 of its bytes."""
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """TINY run serially in one go: the table every other way of running it must reproduce."""
+    run_dir = tmp_path_factory.mktemp("study") / "reference"
+    run = run_study(run_dir, TINY, backend="serial", progress=False)
+    assert run.complete and run.ran == TINY.episodes == 16
+    return run_dir
+
+
+# -- protocol ---------------------------------------------------------------------------------------
+
+
+def test_default_study_is_the_papers() -> None:
+    config = StudyConfig()
+    specs = schedule(config)
+    assert config.episodes == len(specs) == 160  # 10 × 2 strategies × 4 tasks × 2 attempts
+    assert [s.index for s in specs] == list(range(160))
+    first = specs[: 2 * 4 * 2]
+    assert {s.participant for s in first} == {1}
+    assert [s.task for s in first[:8]] == [
+        "human",
+        "human",
+        "coffee",
+        "coffee",
+        "table",
+        "table",
+        "laptop",
+        "laptop",
+    ]
+    assert [s.attempt for s in first[:4]] == [1, 2, 1, 2]
+    # Counterbalanced: half the participants start with each strategy.
+    starts = [strategy_order(config, p)[0] for p in range(1, 11)]
+    assert starts.count("impedance") == starts.count("learning") == 5
+    for s in specs:
+        assert strategy_order(config, s.participant)[s.order - 1] == s.strategy
+    assert len({s.key for s in specs}) == 160
+    assert len({s.seed for s in specs}) == 160
+
+
+def test_seeds_depend_on_what_not_when() -> None:
+    """An episode's seed depends on (study seed, participant, strategy, task, attempt) only."""
+    full = {s.key: s.seed for s in schedule(StudyConfig(participants=3))}
+    fewer = {s.key: s.seed for s in schedule(StudyConfig(participants=2, tasks=("laptop", "human")))}
+    assert all(full[k] == v for k, v in fewer.items())
+    assert episode_seed(0, 1, "learning", "laptop", 1) != episode_seed(1, 1, "learning", "laptop", 1)
+    assert episode_seed(0, 1, "learning", "laptop", 1) != episode_seed(0, 1, "learning", "laptop", 2)
+    assert 0 <= max(full.values()) < 2**63
+    assert participant_params(3, 2) == participant_params(3, 2)
+    assert participant_params(3, 2) != participant_params(3, 1)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "key"),
+    [
+        ({"participants": 0}, "participants"),
+        ({"participants": -3}, "participants"),
+        ({"participants": 2.5}, "participants"),
+        ({"attempts": 0}, "attempts"),
+        ({"seed": -1}, "seed"),
+        ({"strategies": ("learning", "telepathy")}, "strategies"),
+        ({"tasks": ()}, "tasks"),
+        ({"tasks": ("human", "human")}, "tasks"),
+        ({"familiarization": "coffee", "tasks": ("human", "laptop")}, "familiarization"),
+        ({"duration": 0.0}, "duration"),
+        ({"waypoints": 2}, "waypoints"),
+        ({"rule": "most"}, "rule"),
+        ({"sample_rate": 0.0}, "sample_rate"),
+        ({"sample_rate": "fast"}, "sample_rate"),
+        ({"sensor_noise": -1.0}, "sensor_noise"),
+    ],
+)
+def test_bad_study_parameters_are_clear_errors(kwargs: dict, key: str) -> None:
+    with pytest.raises(StudyConfigError, match=key) as info:
+        StudyConfig(**kwargs)
+    assert isinstance(info.value, ConfigError | InvalidParameterError)
+
+
+def test_unknown_task_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(StudyConfigError, match="nosuchtask"):
+        StudyConfig(tasks=("nosuchtask",), familiarization=None)
+    config = StudyConfig(tasks=(str(tmp_path / "missing.toml"),), familiarization=None)
+    with pytest.raises(StudyConfigError, match="missing.toml"):
+        run_study(tmp_path / "s", config, backend="serial", progress=False)
+    assert not (tmp_path / "s").exists()
+
+
+def test_study_toml(tmp_path: Path) -> None:
+    good = tmp_path / "study.toml"
+    good.write_text('participants = 4\nseed = 3\ntasks = ["human", "table"]\nduration = 3.0\n')
+    assert StudyConfig.from_toml(good) == StudyConfig(
+        participants=4, seed=3, tasks=("human", "table"), duration=3.0
+    )
+    for text, match in [
+        ("participants = 0\n", "participants must be an integer >= 1"),
+        ("participants = 'ten'\n", "participants"),
+        ("participant = 10\n", "unknown key"),
+        ("participants = [\n", "not valid TOML"),
+        ("tasks = 'human'\n", "tasks"),
+    ]:
+        bad = tmp_path / "bad.toml"
+        bad.write_text(text)
+        with pytest.raises(StudyConfigError, match=match) as info:
+            StudyConfig.from_toml(bad)
+        assert str(bad) in str(info.value)
+    with pytest.raises(StudyConfigError, match="cannot read"):
+        StudyConfig.from_toml(tmp_path / "missing.toml")
+
+
+def test_config_round_trips_through_a_dict() -> None:
+    assert StudyConfig.from_dict(TINY.to_dict()) == TINY
+    assert StudyConfig.from_dict(json.loads(json.dumps(TINY.to_dict()))) == TINY
+
+
+# -- the study folder -------------------------------------------------------------------------------
+
+
+def test_folder_holds_table_logs_and_manifest(reference: Path) -> None:
+    for name in ("study.json", "participants.csv", "results.csv", "results.parquet"):
+        assert (reference / name).is_file(), name
+    manifest = json.loads((reference / "study.json").read_text())
+    assert StudyConfig.from_dict(manifest["config"]) == TINY
+    table = load_results(reference)
+    assert list(table.columns) == list(COLUMNS)
+    assert len(table) == 16 and (table["status"] == "ok").all()
+    assert table[["participant", "strategy", "task", "attempt"]].drop_duplicates().shape[0] == 16
+    assert [tuple(r) for r in table[["participant", "strategy", "task", "attempt"]].to_numpy()] == [
+        s.key for s in schedule(TINY)
+    ]
+    # CSV and Parquet hold the same table; the CSV is sorted in session order once complete.
+    parquet = pd.read_parquet(reference / "results.parquet")
+    pd.testing.assert_frame_equal(parquet, table, check_dtype=False)
+    assert pd.read_csv(reference / "results.csv")["seed"].tolist() == table["seed"].tolist()
+    weights = [json.loads(w) for w in table["final_weights"]]
+    assert all(set(w) == {"efficiency", t} for w, t in zip(weights, table["task"], strict=True))
+    assert np.allclose([w[t] for w, t in zip(weights, table["task"], strict=True)], table["final_weight"])
+    # Every episode has its log with the time series and the desired plan.
+    for log in table["log"]:
+        with np.load(reference / log) as data:
+            assert data["q"].shape[1] == 7 and data["desired"].shape == (5, 7)
+            assert len(data["t"]) == pytest.approx(201, abs=1)  # 2 s at 100 Hz
+    assert (table["effort"] >= 0).all() and (table["interaction_time"] >= 0).all()
+
+
+def test_rerunning_a_complete_study_changes_nothing(reference: Path) -> None:
+    before = snapshot(reference)
+    run = run_study(reference, progress=False)
+    assert run.complete and run.ran == 0 and run.resumed == 16
+    after = snapshot(reference)
+    assert {k: v for k, v in after.items() if k != "results.parquet"} == {
+        k: v for k, v in before.items() if k != "results.parquet"
+    }
+
+
+def test_resume_after_max_episodes_gives_the_same_table(reference: Path, tmp_path: Path) -> None:
+    run_dir = tmp_path / "study"
+    first = run_study(run_dir, TINY, backend="serial", progress=False, max_episodes=5)
+    assert (first.ran, first.complete) == (5, False)
+    assert len(load_results(run_dir)) == 5
+    second = run_study(run_dir, TINY, backend="serial", progress=False)
+    assert (second.resumed, second.ran, second.complete) == (5, 11, True)
+    pd.testing.assert_frame_equal(table_without_wall_time(run_dir), table_without_wall_time(reference))
+
+
+def test_interrupted_study_loses_nothing_and_resumes(reference: Path, tmp_path: Path) -> None:
+    run_dir = tmp_path / "study"
+    seen: list[dict] = []
+
+    def stop_after_three(spec, row):  # noqa: ANN001
+        seen.append(row)
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_study(run_dir, TINY, backend="serial", progress=False, on_episode=stop_after_three)
+    kept = load_results(run_dir)
+    assert len(kept) == 3
+    assert len(pd.read_parquet(run_dir / "results.parquet")) == 3
+    # A kill in the middle of writing a row, and a log whose row was never written.
+    with open(run_dir / "results.csv", "a") as f:
+        f.write("2,learning,1,hum")
+    pending = [
+        s
+        for s in schedule(TINY)
+        if s.key not in {tuple(r) for r in kept[["participant", "strategy", "task", "attempt"]].to_numpy()}
+    ]
+    orphan = run_dir / "logs" / pending[0].log_name()
+    orphan.write_bytes(b"half a log")
+    # Resuming without repeating the study's parameters: the folder's own study.
+    run = run_study(run_dir, progress=False)
+    assert (run.resumed, run.ran, run.complete) == (3, 13, True)
+    pd.testing.assert_frame_equal(table_without_wall_time(run_dir), table_without_wall_time(reference))
+    assert not list((run_dir / "logs").glob("*.partial"))
+
+
+def test_a_different_study_is_refused_and_nothing_changes(reference: Path) -> None:
+    before = snapshot(reference)
+    for other in (
+        StudyConfig(**{**TINY.to_dict(), "seed": 8, "tasks": TINY.tasks}),
+        StudyConfig(**{**TINY.to_dict(), "participants": 3, "tasks": TINY.tasks}),
+        StudyConfig(),
+    ):
+        with pytest.raises(StudyMismatchError, match="another study") as info:
+            run_study(reference, other, backend="serial", progress=False)
+        assert isinstance(info.value, ConfigError)
+    with pytest.raises(StudyMismatchError, match=r"seed: 7 here, 8 asked"):
+        ResultStore.open(reference, StudyConfig(**{**TINY.to_dict(), "seed": 8, "tasks": TINY.tasks}))
+    assert snapshot(reference) == before
+
+
+def test_broken_or_foreign_folders_are_clear_errors(reference: Path, tmp_path: Path) -> None:
+    # A broken manifest: an error naming it; nothing is touched.
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for name in ("results.csv", "participants.csv"):
+        (broken / name).write_bytes((reference / name).read_bytes())
+    for text, match in [
+        ("{not json", "study.json: not a readable study manifest"),
+        ('{"format": "other"}', "not a phri study manifest"),
+        (json.dumps({"format": "phri-study", "version": 1, "config": {"participants": 0}}), "participants"),
+        (json.dumps({"format": "phri-study", "version": 99, "config": {}}), "version"),
+    ]:
+        (broken / "study.json").write_text(text)
+        before = snapshot(broken)
+        with pytest.raises(StudyFileError, match=match):
+            run_study(broken, TINY, backend="serial", progress=False)
+        with pytest.raises(StudyFileError):
+            load_results(broken)
+        assert snapshot(broken) == before
+    # Results without a manifest: refused, untouched.
+    (broken / "study.json").unlink()
+    before = snapshot(broken)
+    with pytest.raises(StudyFileError, match="no study.json"):
+        run_study(broken, TINY, backend="serial", progress=False)
+    assert snapshot(broken) == before
+    # A malformed table: the line is named; nothing is touched.
+    damaged = tmp_path / "damaged"
+    damaged.mkdir()
+    for name in ("study.json", "participants.csv"):
+        (damaged / name).write_bytes((reference / name).read_bytes())
+    lines = (reference / "results.csv").read_text().splitlines(keepends=True)
+    (damaged / "results.csv").write_text(
+        "".join(lines[:3]) + lines[3].replace(",ok,", ",ok,x,") + "".join(lines[4:])
+    )
+    before = snapshot(damaged)
+    with pytest.raises(StudyFileError, match=r"results.csv: line 4"):
+        run_study(damaged, TINY, backend="serial", progress=False)
+    assert snapshot(damaged) == before
+    # A file where the folder should be.
+    file = tmp_path / "file"
+    file.write_text("x")
+    with pytest.raises(StudyFileError, match="not a folder"):
+        run_study(file, TINY, backend="serial", progress=False)
+
+
+def test_one_writer_at_a_time(tmp_path: Path) -> None:
+    with ResultStore.open(tmp_path / "study", TINY):
+        with pytest.raises(StudyLockedError, match="another process"):
+            ResultStore.open(tmp_path / "study", TINY)
+    with ResultStore.open(tmp_path / "study", TINY) as store:
+        assert len(store.pending()) == 16
+
+
+def test_bad_execution_arguments(tmp_path: Path) -> None:
+    with pytest.raises(InvalidParameterError, match="backend"):
+        run_study(tmp_path / "a", TINY, backend="threads", progress=False)
+    assert not (tmp_path / "a").exists()
+    with pytest.raises(InvalidParameterError, match="max_episodes"):
+        run_study(tmp_path / "b", TINY, max_episodes=-1, progress=False)
+
+
+def test_questionnaire_between_strategies(tmp_path: Path) -> None:
+    calls: list[tuple[int, str]] = []
+    run_study(
+        tmp_path / "s",
+        TINY,
+        backend="serial",
+        progress=False,
+        between_strategies=lambda p, s: calls.append((p, s)),
+    )
+    assert calls == [(1, "impedance"), (1, "learning"), (2, "learning"), (2, "impedance")]
+    with pytest.raises(InvalidParameterError, match="serial"):
+        run_study(tmp_path / "t", TINY, backend="process", between_strategies=lambda p, s: None)
+
+
+# -- backends ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_process_pool_gives_the_same_table(reference: Path, tmp_path: Path) -> None:
+    run = run_study(tmp_path / "pool", TINY, backend="process", workers=2, progress=False)
+    assert run.complete and run.workers == 2
+    pd.testing.assert_frame_equal(
+        table_without_wall_time(tmp_path / "pool"), table_without_wall_time(reference)
+    )
+    # Interrupted pool run, resumed serially: still the same table.
+    run_study(tmp_path / "mixed", TINY, backend="process", workers=2, progress=False, max_episodes=7)
+    run_study(tmp_path / "mixed", progress=False, backend="serial")
+    pd.testing.assert_frame_equal(
+        table_without_wall_time(tmp_path / "mixed"), table_without_wall_time(reference)
+    )
+
+
+@pytest.mark.slow
+def test_pool_workers_are_single_threaded() -> None:
+    backend = ProcessBackend(TINY, workers=2)
+    try:
+        envs = backend.worker_environments()
+    finally:
+        backend.close()
+    assert envs == [THREAD_ENV, THREAD_ENV]
+
+
+@pytest.mark.slow
+def test_ray_gives_the_same_table(reference: Path, tmp_path: Path) -> None:
+    ray = pytest.importorskip(
+        "ray", reason="Ray is not installed (optional extra phri[ray]); backend 'ray' untested"
+    )
+    from phri.study.parallel import RayBackend
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        run = run_study(tmp_path / "ray", TINY, backend="ray", workers=2, progress=False)
+        assert run.complete and run.workers == 2
+        pd.testing.assert_frame_equal(
+            table_without_wall_time(tmp_path / "ray"), table_without_wall_time(reference)
+        )
+        backend = RayBackend(TINY, workers=1)
+        try:
+            assert backend.worker_environments() == [THREAD_ENV]
+        finally:
+            backend.close()
+    finally:
+        ray.shutdown()
+
+
+# -- statistics against hand computations -------------------------------------------------------------
+
+
+def _two_by_two(rng: np.random.Generator, n: int) -> pd.DataFrame:
+    rows = []
+    for p in range(1, n + 1):
+        person = rng.normal(0, 2)
+        for s, bump in (("impedance", 3.0), ("learning", 0.0)):
+            for a in (1, 2):
+                rows.append(
+                    {
+                        "participant": p,
+                        "strategy": s,
+                        "attempt": a,
+                        "y": person + bump + 0.5 * a + rng.normal(),
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def test_factorial_anova_matches_hand_computation() -> None:
+    data = _two_by_two(np.random.default_rng(1), 6)
+    out = analysis.factorial_anova(data, "y").set_index("effect")
+    y, grand = data["y"].to_numpy(), data["y"].mean()
+    cell = data.groupby(["strategy", "attempt"])["y"].transform("mean").to_numpy()
+    ss_error, df_error = float(((y - cell) ** 2).sum()), len(y) - 4
+    for effect, factor in (("strategy", "strategy"), ("attempt", "attempt")):
+        level = data.groupby(factor)["y"].transform("mean").to_numpy()
+        ss = float(((level - grand) ** 2).sum())
+        row = out.loc[effect]
+        assert (row["df1"], row["df2"]) == (1, df_error)
+        assert row["F"] == pytest.approx(ss / (ss_error / df_error), rel=1e-9)
+        assert row["partial_eta_sq"] == pytest.approx(ss / (ss + ss_error), rel=1e-9)
+        assert row["p"] == pytest.approx(stats.f.sf(row["F"], 1, df_error), rel=1e-9)
+    # The paper's form: 120 observations, F(1, 116).
+    big = _two_by_two(np.random.default_rng(2), 30)
+    assert set(analysis.factorial_anova(big, "y")["df2"]) == {116.0}
+
+
+def test_rm_anova_matches_paired_t_tests() -> None:
+    """With two levels per factor, each effect's F is the square of a one-sample t on the right contrast."""
+    data = _two_by_two(np.random.default_rng(3), 8)
+    out = analysis.rm_anova(data, "y").set_index("effect")
+    wide = data.pivot_table(index="participant", columns=["strategy", "attempt"], values="y")
+    imp1, imp2 = wide[("impedance", 1)], wide[("impedance", 2)]
+    lrn1, lrn2 = wide[("learning", 1)], wide[("learning", 2)]
+    contrasts = {
+        "strategy": (imp1 + imp2) / 2 - (lrn1 + lrn2) / 2,
+        "attempt": (imp1 + lrn1) / 2 - (imp2 + lrn2) / 2,
+        "strategy:attempt": imp1 - imp2 - lrn1 + lrn2,
+    }
+    for effect, c in contrasts.items():
+        t = stats.ttest_1samp(c, 0.0)
+        row = out.loc[effect]
+        assert (row["df1"], row["df2"]) == (1, 7)
+        assert row["F"] == pytest.approx(t.statistic**2, rel=1e-9)
+        assert row["p"] == pytest.approx(t.pvalue, rel=1e-7)
+        assert row["partial_eta_sq"] == pytest.approx(row["F"] / (row["F"] + 7), rel=1e-12)
+    # One factor: F(1, n − 1) = paired t².
+    one = analysis.rm_anova(data, "y", within=("strategy",)).iloc[0]
+    means = data.groupby(["participant", "strategy"])["y"].mean().unstack()
+    t = stats.ttest_rel(means["impedance"], means["learning"])
+    assert one["F"] == pytest.approx(t.statistic**2, rel=1e-9)
+
+
+def test_rm_anova_leaves_out_incomplete_participants_and_degenerate_cases() -> None:
+    data = _two_by_two(np.random.default_rng(4), 5)
+    dropped = data[~((data["participant"] == 5) & (data["strategy"] == "learning"))]
+    assert set(analysis.rm_anova(dropped, "y")["df2"]) == {3.0}
+    assert analysis.rm_anova(data[data["participant"] == 1], "y").empty
+    assert analysis.rm_anova(data[data["strategy"] == "learning"], "y", within=("strategy",)).empty
+
+
+def test_descriptives_and_cost_error(reference: Path) -> None:
+    data = analysis.prepare(load_results(reference))
+    assert np.allclose(data["cost_error"], (data["cost"] - data["desired_cost"]).abs())
+    desc = analysis.descriptives(data)
+    assert list(desc["task"].drop_duplicates()) == ["human", "laptop"]
+    sub = data[(data["task"] == "laptop") & (data["strategy"] == "learning")]["effort"]
+    row = desc[(desc["task"] == "laptop") & (desc["strategy"] == "learning")].iloc[0]
+    assert row["n"] == 4
+    assert row["effort_mean"] == pytest.approx(sub.mean()) and row["effort_sd"] == pytest.approx(
+        sub.std(ddof=1)
+    )
+
+
+# -- report and CLI ---------------------------------------------------------------------------------------
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n"
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+
+
+@pytest.mark.slow
+def test_report(reference: Path, tmp_path: Path) -> None:
+    answers = tmp_path / "answers.csv"
+    rng = np.random.default_rng(0)
+    lines = ["participant,strategy," + ",".join(f"q{i}" for i in range(1, 11))]
+    for p in (1, 2, 3):
+        for s in ("impedance", "learning"):
+            lines.append(f"{p},{s}," + ",".join(str(int(x)) for x in rng.integers(1, 8, 10)))
+    answers.write_text("\n".join(lines) + "\n")
+    before = snapshot(reference)
+    path = write_report(reference, tmp_path / "report", questionnaire=answers)
+    assert snapshot(reference) == before  # the study folder is only read
+    text = path.read_text()
+    needles = ("Per task and strategy", "F(1, ", "AnovaRM", "partial η²", "|cost − desired cost|", "Cronbach")
+    for needle in (*needles, "fig4_effort_time.png", "fig5_cost.png", "fig5_paths.png", "Table 1"):
+        assert needle in text, needle
+    for name in ("fig4_effort_time.png", "fig5_cost.png", "fig5_paths.png"):
+        width, height = _png_size(tmp_path / "report" / name)
+        assert width > 600 and height > 300
+    for name in ("descriptives.csv", "anova_pooled.csv", "anova_rm.csv", "anova_by_task.csv", "table1.csv"):
+        assert (tmp_path / "report" / name).is_file()
+    pooled = pd.read_csv(tmp_path / "report" / "anova_pooled.csv")
+    # TINY's experimental trials: 2 participants × 1 task × 2 strategies × 2 attempts = 8 → F(1, 4).
+    assert set(pooled["df2"]) == {4.0}
+    with pytest.raises(StudyFileError, match="no study.json"):
+        write_report(tmp_path / "nothing")
+
+
+def test_report_of_a_study_without_episodes(tmp_path: Path) -> None:
+    run_study(tmp_path / "s", TINY, backend="serial", progress=False, max_episodes=0)
+    text = write_report(tmp_path / "s").read_text()
+    assert "0 of 16 recorded" in text and "The study is incomplete" in text
+    assert "No completed episodes yet" in text and "Not enough data" in text
+
+
+def test_cli_errors_are_clear(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli(["study", str(tmp_path / "s"), "--participants", "0", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "phri study: error:" in err and "participants must be an integer >= 1, got 0" in err
+    assert not (tmp_path / "s").exists()
+    bad = tmp_path / "bad.toml"
+    bad.write_text("participants = [")
+    assert cli(["study", str(tmp_path / "s"), "--config", str(bad)]) == 2
+    assert "not valid TOML" in capsys.readouterr().err
+    assert cli(["report", str(tmp_path / "nothing")]) == 2
+    assert "no study.json" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_cli_study_resume_and_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run_dir = str(tmp_path / "s")
+    common = ["--participants", "2", "--attempts", "1", "--tasks", "human,laptop", "--duration", "1.5",
+              "--waypoints", "4", "--backend", "serial", "--no-progress"]  # fmt: skip
+    assert cli(["study", run_dir, *common, "--max-episodes", "3"]) == 0
+    assert "3 of 8 episodes" in capsys.readouterr().out
+    # A different study into the same folder: refused.
+    assert cli(["study", run_dir, *common, "--seed", "1"]) == 2
+    assert "another study" in capsys.readouterr().err
+    # No study options: resume the folder's own study.
+    assert cli(["study", run_dir, "--no-progress", "--backend", "serial"]) == 0
+    assert "8 of 8 episodes" in capsys.readouterr().out
+    assert cli(["report", run_dir]) == 0
+    assert (tmp_path / "s" / "report" / "report.md").is_file()
+
+
+def test_errors_are_phri_errors() -> None:
+    for cls in (StudyConfigError, StudyFileError, StudyMismatchError, StudyLockedError):
+        assert issubclass(cls, ConfigError) and issubclass(cls, PhriError) and issubclass(cls, ValueError)

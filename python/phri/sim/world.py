@@ -8,6 +8,8 @@ mode unless ``gui=True``. Pictures come from PyBullet's software renderer (no di
 from __future__ import annotations
 
 import math
+import os
+import sys
 import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -39,6 +41,22 @@ class WorldParams:
     joint_damping: float = 0.0  # N·m·s/rad of viscous friction in every joint (0 = ideal arm)
 
 
+def _pybullet():
+    """pybullet, imported without the "pybullet build time" line its C code prints to stdout."""
+    if "pybullet" in sys.modules:
+        return sys.modules["pybullet"]
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            import pybullet
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+    return pybullet
+
+
 def _asset(*parts: str) -> str:
     return str(resources.files("phri").joinpath("robots", *parts))
 
@@ -61,8 +79,7 @@ class World:
     """One PyBullet client with the scene; reuse it across episodes with :meth:`reset`."""
 
     def __init__(self, scene: Scene | None = None, params: WorldParams | None = None) -> None:
-        import pybullet as p
-
+        p = _pybullet()
         self.p = p
         self.scene = scene or Scene()
         self.params = params or WorldParams()

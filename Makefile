@@ -6,10 +6,10 @@ DEPS   := $(VENV)/.deps-installed
 BUILT  := $(VENV)/.ext-built
 CARGO_SOURCES := $(shell find crates -name '*.rs' -o -name Cargo.toml) Cargo.toml
 
-.PHONY: help dev demo test test-rust test-python lint bench bench-peers bench-episode clean
+.PHONY: help dev demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-episode clean
 
 help:  ## List the targets
-	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
+	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-20s %s\n", $$1, $$2}'
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -51,6 +51,11 @@ bench:  ## Criterion benchmarks (median and worst case)
 bench-peers: $(BUILT)  ## Time phri against pinocchio and PyBullet side by side
 	$(PIP) install --quiet "pin>=3"
 	$(PY) benches/peers.py
+
+bench-trajopt-peers: $(BUILT)  ## Time phri's trajectory optimiser against scipy L-BFGS-B and Drake
+	$(PIP) install --quiet "pin>=3" "scipy>=1.11"
+	$(PIP) install --quiet drake || echo "drake did not install here: its rows are skipped"
+	$(PY) benches/trajopt_peers.py
 
 bench-episode: $(BUILT)  ## Time simulated 15 s episodes against real time
 	$(PY) benches/episode.py

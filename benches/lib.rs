@@ -1,5 +1,14 @@
 //! Shared fixtures for the criterion benchmarks.
 
+use std::sync::Arc;
+
+use nalgebra::{Matrix6xX, Vector3, Vector6};
+use phri_core::deform::{DeformParams, Deformation};
+use phri_core::features::{FeatureSet, SceneParams};
+use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
+use phri_core::learner::{Learner, LearnerParams};
+use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
+use phri_core::update::{UpdateParams, UpdateRule, WeightUpdate};
 use phri_core::RobotModel;
 
 /// The shipped JACO2 description (the same file the Python package loads).
@@ -15,7 +24,127 @@ pub fn deg(q: [f64; 7]) -> [f64; 7] {
     q.map(f64::to_radians)
 }
 
+/// The study's pick_basic pose [rad].
+pub fn pick_basic() -> [f64; 7] {
+    deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8])
+}
+
+/// The study's pick_shelf pose [rad].
+pub fn pick_shelf() -> [f64; 7] {
+    deg([210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8])
+}
+
 /// The study's place_lower pose [rad].
 pub fn place_lower() -> [f64; 7] {
     deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0])
+}
+
+/// The study's place_higher pose [rad].
+pub fn place_higher() -> [f64; 7] {
+    deg([210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4])
+}
+
+/// One of the study's four tasks (original_system.md; python/phri/tasks/*.toml).
+#[derive(Debug, Clone, Copy)]
+pub struct StudyTask {
+    /// Task name, which is also the name of its learned feature.
+    pub name: &'static str,
+    pub start: [f64; 7],
+    pub goal: [f64; 7],
+    /// The demonstrated (true) cost weight of the task feature; efficiency has weight 1.
+    pub true_weight: f64,
+    /// Update gain of the task feature [weight per unit feature count].
+    pub gain: f64,
+}
+
+/// The four tasks, in the study's order.
+pub fn study_tasks() -> [StudyTask; 4] {
+    [
+        StudyTask { name: "human", start: pick_shelf(), goal: place_higher(), true_weight: 10.0, gain: 100.0 },
+        StudyTask { name: "coffee", start: pick_shelf(), goal: place_lower(), true_weight: 1.0, gain: 2.0 },
+        StudyTask { name: "table", start: pick_basic(), goal: place_lower(), true_weight: 1.0, gain: 2.0 },
+        StudyTask { name: "laptop", start: pick_basic(), goal: place_higher(), true_weight: 10.0, gain: 100.0 },
+    ]
+}
+
+/// Task duration T [s].
+pub const DURATION: f64 = 15.0;
+/// The table top's height in the base frame [m].
+pub const TABLE_TOP: f64 = -0.1016;
+/// The study planner's tool-point clearance above the table top [m] (python/phri/sim/episode.py).
+pub const HAND_CLEARANCE: f64 = 0.1016;
+/// The study planner's link_7 clearance above the table top [m].
+pub const CUP_CLEARANCE: f64 = 0.06;
+/// Plans move each joint at most this fraction of its velocity limit.
+pub const VELOCITY_MARGIN: f64 = 0.5;
+
+/// The study's planner for `task` over `waypoints` waypoints, exactly as `phri.sim.Planner` builds
+/// it: features ["efficiency", task], clearance for the tool point and link_7 (weight 10³), and
+/// max_step = 0.5 × velocity limit × waypoint spacing; other parameters at their defaults.
+pub fn study_planner(model: &Arc<RobotModel>, task: &StudyTask, waypoints: usize) -> (FeatureSet, TrajectoryOptimizer) {
+    let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
+    let hand = model.frame_id("j2s7s300_end_effector").expect("tool point exists");
+    let features = FeatureSet::from_names(model.clone(), link_7, &["efficiency", task.name], &SceneParams::default())
+        .expect("built-in features");
+    let spacing = DURATION / (waypoints - 1) as f64;
+    let params = TrajoptParams {
+        clearance: vec![
+            Clearance { frame: hand, min_z: TABLE_TOP + HAND_CLEARANCE, weight: 1e3 },
+            Clearance { frame: link_7, min_z: TABLE_TOP + CUP_CLEARANCE, weight: 1e3 },
+        ],
+        max_step: model.velocity_limits().iter().map(|v| VELOCITY_MARGIN * v * spacing).collect(),
+        ..Default::default()
+    };
+    let optimizer = TrajectoryOptimizer::new(&features, waypoints, params).expect("valid parameters");
+    (features, optimizer)
+}
+
+/// Algorithm 1 on `task` as the simulated study runs it (initial task weight 0, the task's gain and
+/// clip, the "all" rule, original thresholds and deformation), sampling every `sample_period` [s].
+/// Construction plans cold.
+pub fn study_learner(model: &Arc<RobotModel>, task: &StudyTask, waypoints: usize, sample_period: f64) -> Learner {
+    let (features, optimizer) = study_planner(model, task, waypoints);
+    let update = WeightUpdate::new(UpdateParams {
+        step: vec![0.0, task.gain],
+        lower: vec![1.0, 0.0],
+        upper: vec![1.0, task.true_weight],
+        learned: vec![false, true],
+        ranges: vec![1.0, 1.0],
+        rule: UpdateRule::All,
+    })
+    .expect("valid update");
+    let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).expect("valid thresholds");
+    let deformation = Deformation::new(DeformParams::default()).expect("default deformation");
+    let params = LearnerParams { sample_period, duration: DURATION, ..Default::default() };
+    Learner::new(params, features, deformation, update, detector, optimizer, &[1.0, 0.0], &task.start, &task.goal)
+        .expect("valid learner")
+}
+
+/// The joint torque [N·m] of a person's push at the tool point, at the learner's reference pose at
+/// time `t` [s]: a 25 N force that moves the cup the way the task wants (down for table, away from
+/// the keep-out centre for laptop and human), or a 4 N·m torque righting the cup for coffee.
+pub fn corrective_push(model: &RobotModel, learner: &Learner, task: &StudyTask, t: f64) -> [f64; 7] {
+    let (mut q, mut qd, mut qdd) = ([0.0; 7], [0.0; 7], [0.0; 7]);
+    learner.reference(t, &mut q, &mut qd, &mut qdd);
+    let mut data = model.data();
+    model.forward_kinematics(&q, &mut data).expect("valid q");
+    let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
+    let hand = model.frame_id("j2s7s300_end_effector").expect("tool point exists");
+    let pose = model.frame_pose(link_7, &data);
+    let p = pose.translation.vector;
+    let (force, torque) = match task.name {
+        "table" => (Vector3::new(0.0, 0.0, -25.0), Vector3::zeros()),
+        "coffee" => {
+            let x: Vector3<f64> = pose.rotation.matrix().column(0).into();
+            (Vector3::zeros(), x.cross(&Vector3::z()).normalize() * 4.0)
+        }
+        "laptop" => (Vector3::new(p.x + 0.7929, p.y + 0.1, 0.0).normalize() * 25.0, Vector3::zeros()),
+        _ => (Vector3::new(p.x, p.y - 0.2, 0.0).normalize() * 25.0, Vector3::zeros()),
+    };
+    let mut jacobian = Matrix6xX::zeros(7);
+    model.frame_jacobian(hand, &data, &mut jacobian).expect("7 columns");
+    let tau = jacobian.transpose() * Vector6::new(force.x, force.y, force.z, torque.x, torque.y, torque.z);
+    let mut out = [0.0; 7];
+    out.iter_mut().zip(tau.iter()).for_each(|(o, v)| *o = *v);
+    out
 }

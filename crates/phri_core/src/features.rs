@@ -1,4 +1,4 @@
-//! Task features φ and trajectory feature counts Φ(ξ) with analytic gradients.
+//! Task features φ and trajectory feature counts Φ(ξ) with analytic gradients and second derivatives.
 //!
 //! A trajectory ξ is N waypoints of the robot's joints (N × n, one waypoint per row). As in the
 //! authors' code, Φ(ξ) = Σ_{i=1}^{N-1} φ(q_{i-1}, q_i): every feature is evaluated on the segment that
@@ -6,9 +6,12 @@
 //!
 //! # Adding a feature
 //! Implement [`Feature`]: `segment` returns φ for one segment and, when asked, adds the scaled
-//! gradient with respect to both end waypoints. Ask the [`Segment`] for the kinematics of any point
-//! along it (`seg.point(s)`, `seg.jacobian(s)` for s ∈ [0, 1]); they are computed once per segment
-//! and shared by all features. Then pass `Box::new(YourFeature)` to [`FeatureSet::new`].
+//! gradient with respect to both end waypoints (and, when the optimiser asks, the scaled second
+//! derivatives into [`SegmentGrad::hessian`]; a feature that ignores it still works, the optimiser
+//! then learns its curvature more slowly). Ask the [`Segment`] for the kinematics of any point along
+//! it (`seg.point(s)`, `seg.jacobian(s)` for s ∈ [0, 1]); they are computed once per evaluation
+//! (the end points once per waypoint, shared by the two segments that meet there) and shared by all
+//! features. Then pass `Box::new(YourFeature)` to [`FeatureSet::new`].
 
 use std::sync::Arc;
 
@@ -16,7 +19,9 @@ use nalgebra::{Matrix3, Matrix6xX, Vector2, Vector3};
 
 use crate::data::RobotData;
 use crate::error::{check_finite, PhriError, Result};
-use crate::model::{FrameId, RobotModel};
+use crate::kinematics::{direction_hessian, position_hessian};
+use crate::model::{FrameId, JointKind, RobotModel};
+use crate::trajopt::BlockTridiagonal;
 
 /// Kinematics of the feature frame (link_7 by default) at one configuration.
 #[derive(Debug, Clone, Copy)]
@@ -27,11 +32,185 @@ pub struct Point {
     pub rotation: Matrix3<f64>,
 }
 
-/// Where a feature adds its gradient: `prev += scale·∂φ/∂q_{i-1}`, `this += scale·∂φ/∂q_i`.
+/// Where a feature adds its derivatives: `prev += scale·∂φ/∂q_{i-1}`, `this += scale·∂φ/∂q_i`, and,
+/// when `hessian` is given, `hessian += scale·∂²φ/∂(q_{i-1}, q_i)²`.
 pub struct SegmentGrad<'a> {
     pub scale: f64,
     pub prev: &'a mut [f64],
     pub this: &'a mut [f64],
+    /// Second derivatives, asked for by the Newton optimiser (None otherwise).
+    pub hessian: Option<&'a mut SegmentHessian>,
+    /// Where a kinked feature reports its pieces that are off now but may turn on within a step
+    /// (asked for by the Newton optimiser along with `hessian`; None otherwise).
+    pub pieces: Option<&'a mut Pieces>,
+}
+
+/// Inactive hinge pieces for the optimiser's model. A piece is a term ½·c·max(0, f)² of the cost
+/// whose argument f, at the point q(s) = q_{i-1} + s·(q_i − q_{i-1}) of a segment, is f0 ≤ 0 now
+/// and varies as f0 + a·Δq(s) with a step Δ. The model adds it once a step would turn it on, so a
+/// Newton step does not run blindly across a kink (e.g. back into a keep-out circle).
+#[derive(Debug, Clone)]
+pub struct Pieces {
+    n: usize,
+    segment: usize,
+    pub(crate) list: Vec<Piece>,
+    pub(crate) a: Vec<f64>,
+}
+
+/// One entry of [`Pieces`]: at waypoints (segment − 1, segment), parameter s; f0; curvature c.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Piece {
+    pub(crate) segment: usize,
+    pub(crate) s: f64,
+    pub(crate) f0: f64,
+    pub(crate) c: f64,
+}
+
+impl Pieces {
+    /// Empty, for `n` joints.
+    pub fn new(n: usize) -> Self {
+        Pieces { n, segment: 0, list: Vec::new(), a: Vec::new() }
+    }
+
+    /// Number of pieces.
+    pub fn len(&self) -> usize {
+        self.list.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.list.is_empty()
+    }
+
+    pub fn clear(&mut self) {
+        self.list.clear();
+        self.a.clear();
+    }
+
+    /// The segment (its end waypoint i) that following pushes belong to.
+    pub(crate) fn set_segment(&mut self, i: usize) {
+        self.segment = i;
+    }
+
+    /// Adds the piece ½·`c`·max(0, f)² with f = `f0` + Σ_j a(j)·Δq_j(s) at the point q(s).
+    pub fn push(&mut self, s: f64, f0: f64, c: f64, a: impl Fn(usize) -> f64) {
+        self.list.push(Piece { segment: self.segment, s, f0, c });
+        self.a.extend((0..self.n).map(a));
+    }
+}
+
+/// Second derivatives of one segment's cost with respect to (q_{i-1}, q_i): a symmetric 2n × 2n
+/// matrix, row-major, q_{i-1} first. Features add to it with the helpers below; a quantity of the
+/// point q(s) = q_{i-1} + s·(q_i − q_{i-1}) with derivative v and Hessian H in q maps to the segment
+/// as [(1−s)v, s·v] and [[(1−s)²H, s(1−s)H], [s(1−s)H, s²H]]. Terms at the same s are summed in
+/// an n × n buffer and mapped once.
+#[derive(Debug, Clone)]
+pub struct SegmentHessian {
+    n: usize,
+    m: Vec<f64>,
+    v: Vec<f64>,
+    /// Pending n × n Hessian at the point `pending`.
+    h: Vec<f64>,
+    pending: Option<f64>,
+    tmp: Vec<f64>,
+}
+
+impl SegmentHessian {
+    /// A zero matrix for `n` joints.
+    pub fn new(n: usize) -> Self {
+        SegmentHessian { n, m: vec![0.0; 4 * n * n], v: vec![0.0; n], h: vec![0.0; n * n], pending: None, tmp: vec![0.0; n * n] }
+    }
+
+    /// Number of joints n (the matrix is 2n × 2n).
+    pub fn dof(&self) -> usize {
+        self.n
+    }
+
+    /// Entry (r, c), r and c in 0..2n (terms still pending are not included; see `flush`).
+    pub fn get(&self, r: usize, c: usize) -> f64 {
+        self.m[r * 2 * self.n + c]
+    }
+
+    /// The 2n × 2n matrix, row-major, after [`SegmentHessian::flush`].
+    pub fn matrix(&self) -> &[f64] {
+        &self.m
+    }
+
+    /// Sets every entry to 0.
+    pub fn clear(&mut self) {
+        self.m.fill(0.0);
+        self.h.fill(0.0);
+        self.pending = None;
+    }
+
+    /// Adds `weight`·[[I, −I], [−I, I]] (the Hessian of weight·‖q_i − q_{i-1}‖²/2).
+    pub fn add_difference(&mut self, weight: f64) {
+        let (n, w) = (self.n, 2 * self.n);
+        for j in 0..n {
+            self.m[j * w + j] += weight;
+            self.m[(n + j) * w + n + j] += weight;
+            self.m[j * w + n + j] -= weight;
+            self.m[(n + j) * w + j] -= weight;
+        }
+    }
+
+    fn pending_at(&mut self, s: f64) {
+        if self.pending != Some(s) {
+            self.flush();
+            self.pending = Some(s);
+        }
+    }
+
+    /// Maps the pending n × n terms into the segment's matrix.
+    pub fn flush(&mut self) {
+        let Some(s) = self.pending.take() else { return };
+        let (n, w) = (self.n, 2 * self.n);
+        let (aa, ab, bb) = ((1.0 - s) * (1.0 - s), s * (1.0 - s), s * s);
+        for r in 0..n {
+            for c in 0..n {
+                let x = self.h[r * n + c];
+                self.m[(n + r) * w + n + c] += bb * x;
+                if ab != 0.0 {
+                    self.m[r * w + c] += aa * x;
+                    self.m[r * w + n + c] += ab * x;
+                    self.m[(n + r) * w + c] += ab * x;
+                }
+            }
+        }
+        self.h.fill(0.0);
+    }
+
+    /// Adds `weight`·u·uᵀ with u = [(1−s)v, s·v] and v_j = `v(j)`, the derivative in q of a quantity
+    /// at the point q(s) (a Gauss–Newton term).
+    pub fn add_outer(&mut self, s: f64, weight: f64, v: impl Fn(usize) -> f64) {
+        self.pending_at(s);
+        let n = self.n;
+        for j in 0..n {
+            self.v[j] = v(j);
+        }
+        for r in 0..n {
+            let vr = weight * self.v[r];
+            if vr == 0.0 {
+                continue;
+            }
+            for c in 0..n {
+                self.h[r * n + c] += vr * self.v[c];
+            }
+        }
+    }
+
+    /// The n × n matrix the curvature helpers fill (exposed for custom features): fill it with a
+    /// Hessian in q at a point, then call [`SegmentHessian::add_scratch_at`].
+    pub fn scratch(&mut self) -> &mut [f64] {
+        &mut self.tmp
+    }
+
+    /// Adds `weight`·(the scratch matrix) as the Hessian at the point q(s).
+    pub fn add_scratch_at(&mut self, s: f64, weight: f64) {
+        self.pending_at(s);
+        for (h, t) in self.h.iter_mut().zip(&self.tmp) {
+            *h += weight * t;
+        }
+    }
 }
 
 #[derive(Clone)]
@@ -42,6 +221,16 @@ struct Sample {
     has_jacobian: bool,
 }
 
+/// Kinematics of one waypoint, valid for the evaluation whose epoch it carries.
+#[derive(Clone)]
+struct WaypointKin {
+    data: RobotData,
+    point: Point,
+    jacobian: Matrix6xX<f64>,
+    epoch: u64,
+    jacobian_epoch: u64,
+}
+
 /// Per-segment kinematics cache, shared by all features of a [`FeatureSet`].
 pub struct Segment<'a> {
     /// Start waypoint q_{i-1} [rad].
@@ -50,6 +239,8 @@ pub struct Segment<'a> {
     pub q: &'a [f64],
     /// Smoothing width δ for kinked features (0 = exact); set by the optimiser, see [`huber`].
     pub smoothing: f64,
+    /// Index i of the segment's end waypoint.
+    index: usize,
     ws: &'a mut Workspace,
 }
 
@@ -57,6 +248,13 @@ pub struct Segment<'a> {
 struct Workspace {
     model: Arc<RobotModel>,
     frame: FrameId,
+    /// Per joint j, a bound on the distance from joint j's axis to the feature frame's origin [m]
+    /// (None when a prismatic joint makes it unbounded); see [`Segment::travel_bound`].
+    reach: Option<Vec<f64>>,
+    /// Evaluation counter: waypoint kinematics carrying an older epoch are stale.
+    epoch: u64,
+    waypoints: Vec<WaypointKin>,
+    /// Intermediate samples of the current segment.
     data: RobotData,
     /// Configuration whose forward kinematics is in `data` (as a sample parameter s).
     data_s: Option<f64>,
@@ -75,6 +273,63 @@ impl Workspace {
             self.data_s = Some(s);
         }
     }
+
+    /// Starts an evaluation of a trajectory of `waypoints` rows: all cached kinematics go stale.
+    fn begin(&mut self, waypoints: usize) {
+        self.epoch += 1;
+        if self.waypoints.len() < waypoints {
+            let nq = self.model.nq();
+            let blank = WaypointKin {
+                data: self.model.data(),
+                point: Point { position: Vector3::zeros(), rotation: Matrix3::identity() },
+                jacobian: Matrix6xX::zeros(nq),
+                epoch: 0,
+                jacobian_epoch: 0,
+            };
+            self.waypoints.resize(waypoints, blank);
+        }
+    }
+
+    /// Forward kinematics of waypoint `i` at `q`, computed once per evaluation.
+    fn waypoint(&mut self, i: usize, q: &[f64]) -> &mut WaypointKin {
+        let w = &mut self.waypoints[i];
+        if w.epoch != self.epoch {
+            self.model.forward_kinematics_unchecked(q, &mut w.data);
+            let pose = self.model.frame_pose(self.frame, &w.data);
+            w.point = Point { position: pose.translation.vector, rotation: *pose.rotation.matrix() };
+            w.epoch = self.epoch;
+        }
+        w
+    }
+
+    fn waypoint_jacobian(&mut self, i: usize, q: &[f64]) -> &Matrix6xX<f64> {
+        let epoch = self.epoch;
+        self.waypoint(i, q);
+        let w = &mut self.waypoints[i];
+        if w.jacobian_epoch != epoch {
+            self.model.frame_jacobian_unchecked(self.frame, &w.data, &mut w.jacobian);
+            w.jacobian_epoch = epoch;
+        }
+        &self.waypoints[i].jacobian
+    }
+}
+
+/// Bounds on the distance from each joint's axis to `frame`'s origin, from the chain's link offsets
+/// (triangle inequality); None when a prismatic joint lies between them.
+fn reach_bounds(model: &RobotModel, frame: FrameId) -> Option<Vec<f64>> {
+    let f = &model.frames[frame.0];
+    let joints = &model.joints;
+    if joints[..f.body.min(joints.len())].iter().any(|j| j.kind == JointKind::Prismatic) {
+        return None;
+    }
+    let mut reach = vec![0.0; joints.len()];
+    let mut acc = f.body_t_frame.translation.vector.norm();
+    for j in (0..f.body.min(joints.len())).rev() {
+        // Joint j's origin is body j+1's origin; joint j+1's origin sits at its offset from it.
+        reach[j] = acc;
+        acc += joints[j].parent_t_joint.translation.vector.norm();
+    }
+    Some(reach)
 }
 
 impl Segment<'_> {
@@ -99,14 +354,27 @@ impl Segment<'_> {
         self.ws.used - 1
     }
 
-    /// Feature-frame kinematics at q_{i-1} + s·(q_i − q_{i-1}), s ∈ [0, 1].
+    /// Feature-frame kinematics at q_{i-1} + s·(q_i − q_{i-1}), s ∈ [0, 1]. The end points (s = 0
+    /// and s = 1) are the waypoints themselves, computed once per evaluation.
     pub fn point(&mut self, s: f64) -> Point {
+        if s == 1.0 {
+            return self.ws.waypoint(self.index, self.q).point;
+        }
+        if s == 0.0 {
+            return self.ws.waypoint(self.index - 1, self.q_prev).point;
+        }
         let i = self.index(s);
         self.ws.samples[i].point
     }
 
     /// World-aligned 6×n Jacobian of the feature frame at the same point as [`Segment::point`].
     pub fn jacobian(&mut self, s: f64) -> &Matrix6xX<f64> {
+        if s == 1.0 {
+            return self.ws.waypoint_jacobian(self.index, self.q);
+        }
+        if s == 0.0 {
+            return self.ws.waypoint_jacobian(self.index - 1, self.q_prev);
+        }
         let i = self.index(s);
         if !self.ws.samples[i].has_jacobian {
             let (q_prev, q) = (self.q_prev, self.q);
@@ -116,6 +384,32 @@ impl Segment<'_> {
             ws.samples[i].has_jacobian = true;
         }
         &self.ws.samples[i].jacobian
+    }
+
+    /// An upper bound on how far the feature frame's origin travels along the segment [m]:
+    /// Σ_j reach_j·|q_i,j − q_{i-1},j|, reach_j bounding the distance from joint j's axis to the
+    /// origin (from the model's link offsets). Every point of the segment lies within s·L of the
+    /// start and (1 − s)·L of the end. None when the model has prismatic joints.
+    pub fn travel_bound(&self) -> Option<f64> {
+        let reach = self.ws.reach.as_ref()?;
+        Some(reach.iter().zip(self.q).zip(self.q_prev).map(|((r, a), b)| r * (a - b).abs()).sum())
+    }
+
+    /// Adds `weight`·Σ_c g_c·∂²p_c/∂ξ² to `hessian`, p the feature frame's origin at q(s): the
+    /// curvature of a cost whose gradient in p is g.
+    pub fn add_position_curvature(&mut self, s: f64, g: &Vector3<f64>, weight: f64, hessian: &mut SegmentHessian) {
+        let jac = self.jacobian(s);
+        position_hessian(jac, g, &mut hessian.tmp);
+        hessian.add_scratch_at(s, weight);
+    }
+
+    /// Adds `weight`·Σ_c w_c·∂²R_{c,col}/∂ξ² to `hessian`, R the feature frame's rotation at q(s):
+    /// the curvature of a cost whose gradient in the frame's axis `col` is w.
+    pub fn add_axis_curvature(&mut self, s: f64, col: usize, w: &Vector3<f64>, weight: f64, hessian: &mut SegmentHessian) {
+        let x: Vector3<f64> = self.point(s).rotation.column(col).into();
+        let jac = self.jacobian(s);
+        direction_hessian(jac, &x, w, &mut hessian.tmp);
+        hessian.add_scratch_at(s, weight);
     }
 }
 
@@ -162,6 +456,9 @@ impl Feature for Efficiency {
                     g.this[j] += 2.0 * g.scale * d;
                     g.prev[j] -= 2.0 * g.scale * d;
                 }
+                if let Some(h) = g.hessian {
+                    h.add_difference(2.0 * g.scale);
+                }
             }
             None => value = seg.q.iter().zip(seg.q_prev).map(|(a, b)| (a - b) * (a - b)).sum(),
         }
@@ -185,6 +482,9 @@ impl Feature for Table {
             let jac = seg.jacobian(1.0);
             for j in 0..g.this.len() {
                 g.this[j] += g.scale * jac[(2, j)];
+            }
+            if let Some(h) = g.hessian {
+                seg.add_position_curvature(1.0, &Vector3::z(), g.scale, h);
             }
         }
         value
@@ -215,9 +515,10 @@ impl Feature for Coffee {
     }
     fn segment(&self, seg: &mut Segment<'_>, grad: Option<SegmentGrad<'_>>) -> f64 {
         let x: Vector3<f64> = seg.point(1.0).rotation.column(0).into();
+        let delta = seg.smoothing;
         let (value, weights) = match self.form {
             CoffeeForm::Horizontal => {
-                let ((a, da), (b, db)) = (huber(x.x, seg.smoothing), huber(x.y, seg.smoothing));
+                let ((a, da), (b, db)) = (huber(x.x, delta), huber(x.y, delta));
                 (a + b, Vector3::new(da, db, 0.0))
             }
             CoffeeForm::Dot => (1.0 - x.z, Vector3::new(0.0, 0.0, -1.0)),
@@ -225,9 +526,21 @@ impl Feature for Coffee {
         if let Some(g) = grad {
             // ∂x/∂q_j = ω_j × x, with ω_j the angular rows of the Jacobian.
             let jac = seg.jacobian(1.0);
+            let dx = |j: usize| Vector3::new(jac[(3, j)], jac[(4, j)], jac[(5, j)]).cross(&x);
             for j in 0..g.this.len() {
-                let w = Vector3::new(jac[(3, j)], jac[(4, j)], jac[(5, j)]);
-                g.this[j] += g.scale * weights.dot(&w.cross(&x));
+                g.this[j] += g.scale * weights.dot(&dx(j));
+            }
+            if let Some(h) = g.hessian {
+                if self.form == CoffeeForm::Horizontal {
+                    // Huber's curvature 1/δ inside its quadratic zone (Gauss–Newton term).
+                    for c in 0..2 {
+                        let k = huber_curvature(x[c], delta);
+                        if k > 0.0 {
+                            h.add_outer(1.0, g.scale * k, |j| dx(j)[c]);
+                        }
+                    }
+                }
+                seg.add_axis_curvature(1.0, 0, &weights, g.scale, h);
             }
         }
         value
@@ -256,6 +569,29 @@ pub fn smooth_hinge(x: f64, delta: f64) -> (f64, f64) {
     }
 }
 
+/// Curvature of [`huber`] for the optimiser's model: its second derivative 1/δ inside the quadratic
+/// zone, and on the linear sides the secant curvature 1/|x| of the quadratic through the kink with
+/// the same slope (the reweighting of IRLS, a convex majoriser of |x|), continuous at |x| = δ. It
+/// makes Newton steps aim at the kink instead of running off along a linear piece.
+fn huber_curvature(x: f64, delta: f64) -> f64 {
+    let a = x.abs();
+    if a > 0.0 || delta > 0.0 {
+        1.0 / a.max(delta)
+    } else {
+        0.0
+    }
+}
+
+/// Curvature of [`smooth_hinge`] for the optimiser's model, as [`huber_curvature`]: 1/max(x, δ)
+/// where the hinge is active, 0 on its flat side.
+fn smooth_hinge_curvature(x: f64, delta: f64) -> f64 {
+    if x > 0.0 {
+        1.0 / x.max(delta)
+    } else {
+        0.0
+    }
+}
+
 fn sign(v: f64) -> f64 {
     if v > 0.0 {
         1.0
@@ -268,6 +604,11 @@ fn sign(v: f64) -> f64 {
 
 /// Penetration into a vertical cylinder: φ = Σ_k max(0, r − ‖p_xy(s_k) − c‖) over `samples` points
 /// s_k = k/samples along the segment (q_{i-1}, q_i] [m]. The original's laptop and human features.
+///
+/// A sample is skipped without its kinematics when a bound proves it outside the circle: with d₀, d₁
+/// the end points' distances from the centre and L the [`Segment::travel_bound`], the point at s is
+/// at least max(d₀ − s·L, d₁ − (1 − s)·L) from it; when that is ≥ r (plus 10⁻⁹ m for rounding)
+/// the sample contributes exactly 0, as it would if computed.
 #[derive(Debug, Clone)]
 pub struct Keepout {
     pub name: String,
@@ -293,25 +634,66 @@ impl Feature for Keepout {
         &self.name
     }
     fn segment(&self, seg: &mut Segment<'_>, mut grad: Option<SegmentGrad<'_>>) -> f64 {
+        let distance = |p: Vector3<f64>| Vector2::new(p.x - self.center.x, p.y - self.center.y).norm();
+        // Conservative skip (see the type's docs): the bound is exact, so results do not change.
+        let skip =
+            seg.travel_bound().map(|travel| (distance(seg.point(0.0).position), distance(seg.point(1.0).position), travel));
+        // The optimiser's model also wants the samples just outside (see [`Pieces`]).
+        let delta = seg.smoothing;
+        let margin = match grad.as_ref() {
+            Some(g) if g.pieces.is_some() && delta > 0.0 => PIECE_MARGIN * self.radius,
+            _ => 0.0,
+        };
         let mut value = 0.0;
         for k in 1..=self.samples {
             let s = k as f64 / self.samples as f64;
+            if let Some((d0, d1, travel)) = skip {
+                if (d0 - s * travel).max(d1 - (1.0 - s) * travel) >= self.radius + margin + 1e-9 {
+                    continue;
+                }
+            }
             let p = seg.point(s).position;
             let d = Vector2::new(p.x - self.center.x, p.y - self.center.y);
             let dist = d.norm();
             if dist >= self.radius {
+                if dist < self.radius + margin {
+                    if let Some(pieces) = grad.as_mut().and_then(|g| g.pieces.as_deref_mut().map(|p| (p, g.scale))) {
+                        let (pieces, scale) = pieces;
+                        let u = d / dist;
+                        let jac = seg.jacobian(s);
+                        pieces.push(s, self.radius - dist, scale / delta, |j| -(u.x * jac[(0, j)] + u.y * jac[(1, j)]));
+                    }
+                }
                 continue;
             }
-            let (v, slope) = smooth_hinge(self.radius - dist, seg.smoothing);
+            let (v, slope) = smooth_hinge(self.radius - dist, delta);
             value += v;
             if let Some(g) = grad.as_mut() {
                 if dist > 0.0 && slope > 0.0 {
                     let u = d / dist;
                     let jac = seg.jacobian(s);
+                    // a = ∂(r − dist)/∂q, b = ∂(dist along the tangent)/∂q.
+                    let a = |j: usize| -(u.x * jac[(0, j)] + u.y * jac[(1, j)]);
+                    let b = |j: usize| -u.y * jac[(0, j)] + u.x * jac[(1, j)];
                     for j in 0..g.this.len() {
-                        let dphi = -(u.x * jac[(0, j)] + u.y * jac[(1, j)]) * slope * g.scale;
+                        let dphi = a(j) * slope * g.scale;
                         g.this[j] += s * dphi;
                         g.prev[j] += (1.0 - s) * dphi;
+                    }
+                    if let Some(h) = g.hessian.as_deref_mut() {
+                        // ∂²φ = h''·a·aᵀ − h'·(b·bᵀ/dist + Σ_c u_c ∂²p_c) (c = x, y), with the
+                        // hinge's curvature h'' for the model (see `smooth_hinge_curvature`).
+                        let curvature = smooth_hinge_curvature(self.radius - dist, delta);
+                        if curvature > 0.0 {
+                            h.add_outer(s, g.scale * curvature, a);
+                        }
+                        // The geometric (indefinite) terms only near the kink, where they matter for
+                        // the final convergence; deep inside the circle they would force heavy
+                        // damping (−1/dist near the centre) for no benefit.
+                        if self.radius - dist < delta {
+                            h.add_outer(s, -g.scale * slope / dist, b);
+                            seg.add_position_curvature(s, &Vector3::new(u.x, u.y, 0.0), -g.scale * slope, h);
+                        }
                     }
                 }
             }
@@ -319,6 +701,10 @@ impl Feature for Keepout {
         value
     }
 }
+
+/// How far outside a keep-out circle (as a fraction of its radius) samples are reported to the
+/// optimiser's model as [`Pieces`].
+const PIECE_MARGIN: f64 = 0.1;
 
 /// Distance of the feature frame's origin from the base origin ‖p‖ [m] at q_i.
 #[derive(Debug, Clone, Default)]
@@ -335,8 +721,17 @@ impl Feature for Origin {
             if value > 0.0 {
                 let u = p / value;
                 let jac = seg.jacobian(1.0);
+                let a = |j: usize| u.x * jac[(0, j)] + u.y * jac[(1, j)] + u.z * jac[(2, j)];
                 for j in 0..g.this.len() {
-                    g.this[j] += g.scale * (u.x * jac[(0, j)] + u.y * jac[(1, j)] + u.z * jac[(2, j)]);
+                    g.this[j] += g.scale * a(j);
+                }
+                if let Some(h) = g.hessian {
+                    // ∂²‖p‖ = Jᵀ(I − u·uᵀ)J/‖p‖ + Σ_c u_c ∂²p_c.
+                    for c in 0..3 {
+                        h.add_outer(1.0, g.scale / value, |j| jac[(c, j)]);
+                    }
+                    h.add_outer(1.0, -g.scale / value, a);
+                    seg.add_position_curvature(1.0, &u, g.scale, h);
                 }
             }
         }
@@ -412,6 +807,7 @@ pub struct FeatureSet {
     /// 1 / normalisation range per feature (1 when not normalised).
     inv_range: Vec<f64>,
     ws: Workspace,
+    hessian: SegmentHessian,
 }
 
 impl FeatureSet {
@@ -431,14 +827,17 @@ impl FeatureSet {
         let nq = model.nq();
         let ws = Workspace {
             data: model.data(),
+            reach: reach_bounds(&model, frame),
             model,
             frame,
+            epoch: 0,
+            waypoints: Vec::new(),
             data_s: None,
             q_s: vec![0.0; nq],
             samples: Vec::with_capacity(8),
             used: 0,
         };
-        Ok(FeatureSet { inv_range: vec![1.0; features.len()], features, ws })
+        Ok(FeatureSet { inv_range: vec![1.0; features.len()], features, ws, hessian: SegmentHessian::new(nq) })
     }
 
     /// Built-in features by name (see [`BUILTIN_FEATURES`]).
@@ -510,7 +909,7 @@ impl FeatureSet {
         let n = ws.model.nq();
         ws.used = 0;
         ws.data_s = None;
-        Segment { q_prev: &trajectory[(i - 1) * n..i * n], q: &trajectory[i * n..(i + 1) * n], smoothing, ws }
+        Segment { q_prev: &trajectory[(i - 1) * n..i * n], q: &trajectory[i * n..(i + 1) * n], smoothing, index: i, ws }
     }
 
     /// Φ(ξ) into `phi` (one entry per feature, normalised if ranges are set).
@@ -518,6 +917,7 @@ impl FeatureSet {
         let waypoints = self.check_trajectory("trajectory", trajectory)?;
         self.check_out("phi", phi.len(), self.len())?;
         phi.fill(0.0);
+        self.ws.begin(waypoints);
         for i in 1..waypoints {
             let mut seg = Self::begin_segment(&mut self.ws, trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
@@ -532,6 +932,7 @@ impl FeatureSet {
         let waypoints = self.check_trajectory("trajectory", trajectory)?;
         let k_len = self.len();
         self.check_out("out", out.len(), (waypoints - 1) * k_len)?;
+        self.ws.begin(waypoints);
         for i in 1..waypoints {
             let mut seg = Self::begin_segment(&mut self.ws, trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
@@ -550,12 +951,19 @@ impl FeatureSet {
         self.check_out("jac", jac.len(), k_len * waypoints * n)?;
         phi.fill(0.0);
         jac.fill(0.0);
+        self.ws.begin(waypoints);
         for i in 1..waypoints {
             let mut seg = Self::begin_segment(&mut self.ws, trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
                 let block = &mut jac[k * waypoints * n..(k + 1) * waypoints * n];
                 let (before, after) = block.split_at_mut(i * n);
-                let grad = SegmentGrad { scale: self.inv_range[k], prev: &mut before[(i - 1) * n..], this: &mut after[..n] };
+                let grad = SegmentGrad {
+                    scale: self.inv_range[k],
+                    prev: &mut before[(i - 1) * n..],
+                    this: &mut after[..n],
+                    hessian: None,
+                    pieces: None,
+                };
                 phi[k] += f.segment(&mut seg, Some(grad)) * self.inv_range[k];
             }
         }
@@ -569,33 +977,118 @@ impl FeatureSet {
         self.check_out("weights", weights.len(), self.len())?;
         check_finite("weights", weights)?;
         self.check_out("grad", grad.len(), trajectory.len())?;
-        Ok(self.weighted_cost_gradient_unchecked(trajectory, waypoints, weights, grad, 0.0))
+        Ok(self.weighted_cost_unchecked(trajectory, waypoints, weights, Some(grad), None, None, 0.0))
     }
 
-    pub(crate) fn weighted_cost_gradient_unchecked(
+    /// The weighted cost c = Σ_k w_k Φ_k(ξ) with the kinked features smoothed by `smoothing` (see
+    /// [`huber`]), its gradient ∂c/∂ξ into `grad` (N × n), and the curvature the Newton optimiser
+    /// uses into `hessian` (N blocks): the exact second derivatives for smooth features (efficiency,
+    /// table, coffee_dot, origin, and the hinges inside their quadratic zone), a convex model
+    /// curvature on the linear sides of the kinks.
+    pub fn weighted_cost_curvature(
+        &mut self,
+        trajectory: &[f64],
+        weights: &[f64],
+        smoothing: f64,
+        grad: &mut [f64],
+        hessian: &mut BlockTridiagonal,
+    ) -> Result<f64> {
+        let waypoints = self.check_trajectory("trajectory", trajectory)?;
+        self.check_out("weights", weights.len(), self.len())?;
+        check_finite("weights", weights)?;
+        self.check_out("grad", grad.len(), trajectory.len())?;
+        if !(smoothing >= 0.0 && smoothing.is_finite()) {
+            return Err(PhriError::invalid("smoothing", format!("must be finite and >= 0, got {smoothing}")));
+        }
+        let n = self.ws.model.nq();
+        if hessian.dof() != n || hessian.blocks() != waypoints {
+            return Err(PhriError::shape(
+                "hessian",
+                format!("{waypoints} blocks of {n} × {n}"),
+                format!("{} blocks of {} × {}", hessian.blocks(), hessian.dof(), hessian.dof()),
+            ));
+        }
+        Ok(self.weighted_cost_unchecked(trajectory, waypoints, weights, Some(grad), Some(hessian), None, smoothing))
+    }
+
+    /// The weighted cost c, its gradient (N × n) and its second derivatives (block tridiagonal,
+    /// one n × n block per waypoint pair) with smoothing width `smoothing` (see [`huber`]), for the
+    /// optimiser. Starts a new evaluation: afterwards [`FeatureSet::waypoint_data`] serves the
+    /// waypoints' kinematics of `trajectory` without recomputing them.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn weighted_cost_unchecked(
         &mut self,
         trajectory: &[f64],
         waypoints: usize,
         weights: &[f64],
-        grad: &mut [f64],
+        mut grad: Option<&mut [f64]>,
+        mut hessian: Option<&mut BlockTridiagonal>,
+        mut pieces: Option<&mut Pieces>,
         smoothing: f64,
     ) -> f64 {
         let n = self.ws.model.nq();
-        grad.fill(0.0);
+        self.ws.begin(waypoints);
+        if let Some(g) = grad.as_deref_mut() {
+            g.fill(0.0);
+        }
+        if let Some(h) = hessian.as_deref_mut() {
+            h.clear();
+        }
+        if let Some(p) = pieces.as_deref_mut() {
+            p.clear();
+        }
         let mut cost = 0.0;
         for i in 1..waypoints {
             let mut seg = Self::begin_segment(&mut self.ws, trajectory, i, smoothing);
-            let (before, after) = grad.split_at_mut(i * n);
-            let prev = &mut before[(i - 1) * n..];
-            let this = &mut after[..n];
-            for (k, f) in self.features.iter().enumerate() {
-                let scale = weights[k] * self.inv_range[k];
-                if scale != 0.0 {
-                    cost += scale * f.segment(&mut seg, Some(SegmentGrad { scale, prev: &mut *prev, this: &mut *this }));
+            match grad.as_deref_mut() {
+                None => {
+                    for (k, f) in self.features.iter().enumerate() {
+                        let scale = weights[k] * self.inv_range[k];
+                        if scale != 0.0 {
+                            cost += scale * f.segment(&mut seg, None);
+                        }
+                    }
+                }
+                Some(grad) => {
+                    let (before, after) = grad.split_at_mut(i * n);
+                    let prev = &mut before[(i - 1) * n..];
+                    let this = &mut after[..n];
+                    let with_hessian = hessian.is_some();
+                    if with_hessian {
+                        self.hessian.clear();
+                    }
+                    if let Some(p) = pieces.as_deref_mut() {
+                        p.set_segment(i);
+                    }
+                    for (k, f) in self.features.iter().enumerate() {
+                        let scale = weights[k] * self.inv_range[k];
+                        if scale != 0.0 {
+                            let h = if with_hessian { Some(&mut self.hessian) } else { None };
+                            let g = SegmentGrad {
+                                scale,
+                                prev: &mut *prev,
+                                this: &mut *this,
+                                hessian: h,
+                                pieces: pieces.as_deref_mut(),
+                            };
+                            cost += scale * f.segment(&mut seg, Some(g));
+                        }
+                    }
+                    if let Some(h) = hessian.as_deref_mut() {
+                        self.hessian.flush();
+                        h.add_segment(i, &self.hessian);
+                    }
                 }
             }
         }
         cost
+    }
+
+    /// Kinematics of waypoint `i` of the trajectory of the current evaluation (see
+    /// [`FeatureSet::weighted_cost_unchecked`]), computed now if no feature needed it.
+    pub(crate) fn waypoint_data(&mut self, trajectory: &[f64], i: usize) -> &RobotData {
+        let n = self.ws.model.nq();
+        &self.ws.waypoint(i, &trajectory[i * n..(i + 1) * n]).data
     }
 
     fn check_out(&self, arg: &str, got: usize, want: usize) -> Result<()> {

@@ -211,8 +211,8 @@ impl RobotModel {
         // triangle inequality (each at most the sum of the other two).
         let moments = inertia.symmetric_eigenvalues();
         let tol = 1e-12 * scale;
-        let physical = moments.iter().all(|m| *m >= -tol)
-            && (0..3).all(|i| moments[i] <= moments[(i + 1) % 3] + moments[(i + 2) % 3] + tol);
+        let physical =
+            moments.iter().all(|m| *m >= -tol) && (0..3).all(|i| moments[i] <= moments[(i + 1) % 3] + moments[(i + 2) % 3] + tol);
         if !physical {
             return Err(PhriError::invalid(
                 "inertia",

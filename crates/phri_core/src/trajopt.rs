@@ -1,16 +1,43 @@
 //! Gradient trajectory optimisation of eq. 4: ξ_R = argmin_ξ w·Φ(ξ) over N waypoints with the start
 //! and goal fixed and the joint position limits as bounds.
 //!
-//! Solver: projected L-BFGS whose initial inverse Hessian is the banded smoothness metric (the
-//! efficiency term's Hessian, a tridiagonal second-difference matrix per joint), so the first step
-//! is a covariant, CHOMP-style step and later steps add curvature from the history. The metric is
-//! factored once per problem size and applied in O(N) per iteration.
+//! Solver ([`TrajoptMethod::Newton`], the default): a projected, damped Newton method on a model
+//! that keeps the kinks piecewise. Every feature and penalty couples at most two consecutive
+//! waypoints, so the Hessian is block tridiagonal (one n × n block per waypoint and per neighbouring
+//! pair) and every linear system is solved by a block Cholesky factorisation (block Thomas
+//! algorithm) in O(N·n³).
+//!
+//! - The smooth part is modelled by its second derivatives: the efficiency term's
+//!   2·w·tridiag(−1, 2, −1) ⊗ I, the exact Hessians of the kinematic features from their Jacobians
+//!   (`kinematics::position_hessian`, `direction_hessian`), and on the linear side of a hinge the
+//!   secant curvature 1/|f| (the IRLS weight of |·|, a convex majoriser) so that steps aim at the kink.
+//! - The kinked terms that a step can switch on — every clearance penalty ρ·max(0, z_min − z)², both
+//!   sides of every max_step penalty, and the keep-out samples just outside their circle — are
+//!   modelled as pieces ½c·max(0, f0 + a·d)², linearised at the current plan (max_step exactly). The
+//!   model's minimiser is found by a damped semismooth Newton iteration (solve with the pieces that
+//!   are on, minimise the convex piecewise-quadratic model exactly along the way to that solution,
+//!   re-mark the pieces, until they agree; refactoring only from the first changed block), so a step
+//!   never runs blindly into a penalty or back into a keep-out circle it could not see.
+//! - Damping λI keeps the model positive definite where the Hessian is not (λ is quartered every
+//!   step and quadrupled while the factorisation fails); a backtracking line search with quadratic
+//!   interpolation on the true cost makes every step a descent step.
+//! - Convergence: the projected gradient below `gradient_tolerance`, or the model predicting a
+//!   decrease below `relative_tolerance`·|cost| with its pieces consistent (quadratic convergence
+//!   near the optimum makes this cheap), or a full step lowering the cost by less than that.
+//! - Joint limits: variables at a bound whose gradient pushes outward are held fixed (projected
+//!   Newton) and steps are clipped to the box.
+//!
+//! Typical counts on the study's tasks (N = 31, from the straight line): 10–30 iterations with about
+//! one cost evaluation each, against 100–500 for the L-BFGS solver.
+//!
+//! [`TrajoptMethod::Lbfgs`] keeps the earlier solver: projected L-BFGS whose initial inverse Hessian
+//! is the banded smoothness metric (a CHOMP-style covariant first step).
 //!
 //! The hinge features (laptop, human, |·| of coffee) are used with their subgradients (zero on the
 //! flat side and at the kink; see `features.rs`), Huber-smoothed with width `smoothing` during the
-//! optimisation so that L-BFGS sees a C¹ cost. The table clearance is a quadratic penalty
-//! ρ·Σ max(0, z_min − z)² on each clearance frame's height at every waypoint; with ρ = 10³ per m²
-//! the optimum violates it by about w_table/(2ρ) = 5·10⁻⁴ m per unit weight (the documented
+//! optimisation so that the cost is C¹ (and piecewise C²). The table clearance is a quadratic
+//! penalty ρ·Σ max(0, z_min − z)² on each clearance frame's height at every waypoint; with ρ = 10³
+//! per m² the optimum violates it by about w_table/(2ρ) = 5·10⁻⁴ m per unit weight (the documented
 //! tolerance is 10⁻³ m), and the reported `max_violation` is the check.
 
 use std::time::{Duration, Instant};
@@ -19,7 +46,8 @@ use nalgebra::Matrix6xX;
 
 use crate::data::RobotData;
 use crate::error::{check_finite, check_vector, PhriError, Result};
-use crate::features::FeatureSet;
+use crate::features::{FeatureSet, Pieces, SegmentHessian};
+use crate::kinematics::position_hessian;
 use crate::model::FrameId;
 
 /// Keep a frame's origin above a height (the hand above the table top plus a clearance).
@@ -32,18 +60,30 @@ pub struct Clearance {
     pub weight: f64,
 }
 
+/// The algorithm that minimises the cost.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TrajoptMethod {
+    /// Projected Newton with Levenberg–Marquardt damping on the exact block-tridiagonal Hessian.
+    #[default]
+    Newton,
+    /// Projected L-BFGS with the smoothness metric as initial inverse Hessian (the earlier solver).
+    Lbfgs,
+}
+
 /// Tuning of the optimiser; `Default` gives the documented defaults.
+///
+/// With `max_time` unset every solve is deterministic: the same inputs give bit-identical plans.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrajoptParams {
-    /// Iteration cap.
+    /// Iteration cap (Newton: factorised steps tried; L-BFGS: directions).
     pub max_iterations: usize,
     /// Wall-time cap; `None` (the default) keeps results deterministic.
     pub max_time: Option<Duration>,
     /// Stop when the largest projected-gradient entry is below this [cost per rad].
     pub gradient_tolerance: f64,
-    /// Stop when an iteration lowers the cost by less than this fraction of it.
+    /// Stop when an accepted step lowers the cost by less than this fraction of it.
     pub relative_tolerance: f64,
-    /// L-BFGS history length.
+    /// L-BFGS history length (L-BFGS only).
     pub memory: usize,
     /// Huber width δ of the kinked features during optimisation (hinges in m, |·| unitless);
     /// the plan's optimum moves by at most about δ. 0 optimises the exact subgradient form.
@@ -55,6 +95,8 @@ pub struct TrajoptParams {
     pub max_step: Vec<f64>,
     /// Penalty weight of `max_step` [cost per rad²].
     pub step_weight: f64,
+    /// The algorithm (default [`TrajoptMethod::Newton`]).
+    pub method: TrajoptMethod,
 }
 
 impl Default for TrajoptParams {
@@ -69,6 +111,7 @@ impl Default for TrajoptParams {
             clearance: Vec::new(),
             max_step: Vec::new(),
             step_weight: 1e3,
+            method: TrajoptMethod::Newton,
         }
     }
 }
@@ -77,7 +120,7 @@ impl Default for TrajoptParams {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrajoptInfo {
     pub iterations: usize,
-    /// Cost evaluations (each one Φ and ∇Φ).
+    /// Cost evaluations (each one Φ and ∇Φ, and for Newton ∇²Φ).
     pub evaluations: usize,
     /// Final cost w·Φ + penalty.
     pub cost: f64,
@@ -89,6 +132,300 @@ pub struct TrajoptInfo {
     pub converged: bool,
     /// Wall time [s].
     pub seconds: f64,
+}
+
+/// A symmetric block-tridiagonal matrix over the waypoints of a trajectory: one n × n block per
+/// waypoint on the diagonal and one per consecutive pair (i, i+1) above it, row-major.
+#[derive(Debug, Clone)]
+pub struct BlockTridiagonal {
+    n: usize,
+    blocks: usize,
+    diag: Vec<f64>,
+    off: Vec<f64>,
+}
+
+impl BlockTridiagonal {
+    /// Zeros for `blocks` waypoints of `n` joints.
+    pub fn new(n: usize, blocks: usize) -> Self {
+        BlockTridiagonal { n, blocks, diag: vec![0.0; blocks * n * n], off: vec![0.0; blocks.saturating_sub(1) * n * n] }
+    }
+
+    /// Number of waypoints (diagonal blocks).
+    pub fn blocks(&self) -> usize {
+        self.blocks
+    }
+
+    /// Block size n (joints).
+    pub fn dof(&self) -> usize {
+        self.n
+    }
+
+    pub fn clear(&mut self) {
+        self.diag.fill(0.0);
+        self.off.fill(0.0);
+    }
+
+    /// Diagonal block of waypoint i.
+    pub fn diag(&self, i: usize) -> &[f64] {
+        &self.diag[i * self.n * self.n..(i + 1) * self.n * self.n]
+    }
+
+    /// Off-diagonal block (i, i+1).
+    pub fn off(&self, i: usize) -> &[f64] {
+        &self.off[i * self.n * self.n..(i + 1) * self.n * self.n]
+    }
+
+    fn diag_mut(&mut self, i: usize) -> &mut [f64] {
+        &mut self.diag[i * self.n * self.n..(i + 1) * self.n * self.n]
+    }
+
+    /// Adds a segment's 2n × 2n Hessian over (q_{i-1}, q_i).
+    pub fn add_segment(&mut self, i: usize, h: &SegmentHessian) {
+        let n = self.n;
+        let m = h.matrix();
+        let w = 2 * n;
+        for r in 0..n {
+            for c in 0..n {
+                self.diag[((i - 1) * n + r) * n + c] += m[r * w + c];
+                self.off[((i - 1) * n + r) * n + c] += m[r * w + n + c];
+                self.diag[(i * n + r) * n + c] += m[(n + r) * w + n + c];
+            }
+        }
+    }
+}
+
+/// The block size of the kernels below: a compile-time constant for the common arms (so loops
+/// unroll and bounds checks vanish), or a run-time one for any other robot.
+trait BlockSize: Copy {
+    fn n(self) -> usize;
+}
+
+#[derive(Clone, Copy)]
+struct Fixed<const N: usize>;
+
+impl<const N: usize> BlockSize for Fixed<N> {
+    #[inline(always)]
+    fn n(self) -> usize {
+        N
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Dynamic(usize);
+
+impl BlockSize for Dynamic {
+    #[inline(always)]
+    fn n(self) -> usize {
+        self.0
+    }
+}
+
+/// Block Cholesky factorisation of a block-tridiagonal matrix (the block Thomas algorithm): diagonal
+/// factors L_b (lower triangular, with reciprocal diagonals kept) and sub-diagonal blocks M_b with
+/// A = L·Lᵀ. Hand-written: no general library kernel exploits the n × n block band, and this is
+/// O(N·n³) with n = 7 (measured: about 4 µs for N = 31 with the size fixed at compile time).
+#[derive(Debug, Clone)]
+struct BlockCholesky {
+    n: usize,
+    blocks: usize,
+    l: Vec<f64>,
+    inv_diag: Vec<f64>,
+    m: Vec<f64>,
+    tmp: Vec<f64>,
+}
+
+impl BlockCholesky {
+    fn new(n: usize, blocks: usize) -> Self {
+        BlockCholesky {
+            n,
+            blocks,
+            l: vec![0.0; blocks * n * n],
+            inv_diag: vec![0.0; blocks * n],
+            m: vec![0.0; blocks * n * n],
+            tmp: vec![0.0; n],
+        }
+    }
+
+    /// Factors H + λI over waypoints `first..first + blocks` of `h`, with the variables marked in
+    /// `fixed` (N × n) decoupled (identity rows). False if the matrix is not positive definite.
+    /// Blocks before `from` are kept from the previous factorisation (valid when nothing they
+    /// depend on changed: the diagonal blocks before `from`, the off-diagonal blocks before
+    /// `from`, λ and `fixed`).
+    fn factor_from(&mut self, h: &BlockTridiagonal, first: usize, lambda: f64, fixed: &[bool], from: usize) -> bool {
+        match self.n {
+            6 => self.factor_sized(Fixed::<6>, h, first, lambda, fixed, from),
+            7 => self.factor_sized(Fixed::<7>, h, first, lambda, fixed, from),
+            n => self.factor_sized(Dynamic(n), h, first, lambda, fixed, from),
+        }
+    }
+
+    /// Solves (in place) the factored system for the waypoints `first..first + blocks` of `x`.
+    fn solve(&mut self, x: &mut [f64], first: usize) {
+        match self.n {
+            6 => self.solve_sized(Fixed::<6>, x, first),
+            7 => self.solve_sized(Fixed::<7>, x, first),
+            n => self.solve_sized(Dynamic(n), x, first),
+        }
+    }
+
+    #[inline(always)]
+    fn factor_sized<S: BlockSize>(
+        &mut self,
+        size: S,
+        h: &BlockTridiagonal,
+        first: usize,
+        lambda: f64,
+        fixed: &[bool],
+        from: usize,
+    ) -> bool {
+        let n = size.n();
+        let nn = n * n;
+        for b in from.min(self.blocks)..self.blocks {
+            let w = first + b;
+            let fixed_w = &fixed[w * n..(w + 1) * n];
+            // L_b ← H_ww + λI − M_{b−1}·M_{b−1}ᵀ (lower triangle), fixed variables decoupled.
+            let l = &mut self.l[b * nn..(b + 1) * nn];
+            let hd = &h.diag[w * nn..(w + 1) * nn];
+            for r in 0..n {
+                for c in 0..=r {
+                    l[r * n + c] = hd[r * n + c];
+                }
+                l[r * n + r] += lambda;
+            }
+            if b > 0 {
+                let mp = &self.m[(b - 1) * nn..b * nn];
+                for r in 0..n {
+                    for c in 0..=r {
+                        let mut s = 0.0;
+                        for k in 0..n {
+                            s += mp[r * n + k] * mp[c * n + k];
+                        }
+                        l[r * n + c] -= s;
+                    }
+                }
+            }
+            for r in 0..n {
+                if fixed_w[r] {
+                    for c in 0..n {
+                        l[r * n + c] = 0.0;
+                        l[c * n + r] = 0.0;
+                    }
+                    l[r * n + r] = 1.0;
+                }
+            }
+            // In-place Cholesky of the lower triangle.
+            let inv = &mut self.inv_diag[b * n..(b + 1) * n];
+            for j in 0..n {
+                let mut d = l[j * n + j];
+                for k in 0..j {
+                    d -= l[j * n + k] * l[j * n + k];
+                }
+                if !(d > 1e-300) {
+                    return false;
+                }
+                let d = d.sqrt();
+                l[j * n + j] = d;
+                inv[j] = 1.0 / d;
+                for i in j + 1..n {
+                    let mut s = l[i * n + j];
+                    for k in 0..j {
+                        s -= l[i * n + k] * l[j * n + k];
+                    }
+                    l[i * n + j] = s * inv[j];
+                }
+            }
+            if b + 1 < self.blocks {
+                // M_b = B_bᵀ·L_b⁻ᵀ: row r of M_b solves L_b·x = (column r of B_b), fixed rows/cols zero.
+                let fixed_next = &fixed[(w + 1) * n..(w + 2) * n];
+                let o = &h.off[w * nn..(w + 1) * nn];
+                let m = &mut self.m[b * nn..(b + 1) * nn];
+                for r in 0..n {
+                    for i in 0..n {
+                        let mut s = if fixed_next[r] || fixed_w[i] { 0.0 } else { o[i * n + r] };
+                        for k in 0..i {
+                            s -= l[i * n + k] * m[r * n + k];
+                        }
+                        m[r * n + i] = s * inv[i];
+                    }
+                }
+            }
+        }
+        true
+    }
+
+    #[inline(always)]
+    fn solve_sized<S: BlockSize>(&mut self, size: S, x: &mut [f64], first: usize) {
+        let n = size.n();
+        let nn = n * n;
+        let tmp = &mut self.tmp[..n];
+        // Forward: y_b = L_b⁻¹ (b_b − M_{b−1} y_{b−1}).
+        for b in 0..self.blocks {
+            let w = first + b;
+            if b > 0 {
+                let m = &self.m[(b - 1) * nn..b * nn];
+                let (prev, cur) = x.split_at_mut(w * n);
+                let prev = &prev[(w - 1) * n..];
+                let cur = &mut cur[..n];
+                for r in 0..n {
+                    let mut s = 0.0;
+                    for k in 0..n {
+                        s += m[r * n + k] * prev[k];
+                    }
+                    cur[r] -= s;
+                }
+            }
+            let l = &self.l[b * nn..(b + 1) * nn];
+            let inv = &self.inv_diag[b * n..(b + 1) * n];
+            let cur = &mut x[w * n..(w + 1) * n];
+            for i in 0..n {
+                let mut s = cur[i];
+                for k in 0..i {
+                    s -= l[i * n + k] * cur[k];
+                }
+                cur[i] = s * inv[i];
+            }
+        }
+        // Backward: x_b = L_b⁻ᵀ (y_b − M_bᵀ x_{b+1}).
+        for b in (0..self.blocks).rev() {
+            let w = first + b;
+            let (head, tail) = x.split_at_mut((w + 1) * n);
+            let cur = &mut head[w * n..];
+            if b + 1 < self.blocks {
+                let m = &self.m[b * nn..(b + 1) * nn];
+                let next = &tail[..n];
+                tmp.fill(0.0);
+                for r in 0..n {
+                    for c in 0..n {
+                        tmp[c] += m[r * n + c] * next[r];
+                    }
+                }
+                for c in 0..n {
+                    cur[c] -= tmp[c];
+                }
+            }
+            let l = &self.l[b * nn..(b + 1) * nn];
+            let inv = &self.inv_diag[b * n..(b + 1) * n];
+            for i in (0..n).rev() {
+                let mut s = cur[i];
+                for k in i + 1..n {
+                    s -= l[k * n + i] * cur[k];
+                }
+                cur[i] = s * inv[i];
+            }
+        }
+    }
+}
+
+/// Semismooth re-solves per Newton step at most.
+const MAX_INNER: usize = 12;
+/// Line-search trials per Newton step at most (α shrinks at least tenfold every two).
+const MAX_BACKTRACKS: usize = 12;
+
+/// How much of the cost an evaluation computes.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Level {
+    Gradient,
+    Hessian,
 }
 
 /// A reusable optimiser for trajectories of `waypoints` × `dof` (workspaces sized once).
@@ -107,12 +444,35 @@ pub struct TrajectoryOptimizer {
     grad: Vec<f64>,
     trial_grad: Vec<f64>,
     direction: Vec<f64>,
+    candidate: Vec<f64>,
+    /// (H_s + λI)·direction, (H_s + λI)·v, and the smooth part of the gradient.
+    hd: Vec<f64>,
+    hv: Vec<f64>,
+    smooth_grad: Vec<f64>,
+    /// Per model piece: curvature, lowest waypoint, value at `direction`, slope along the step.
+    piece_c: Vec<f64>,
+    piece_w: Vec<usize>,
+    line_f: Vec<f64>,
+    line_g: Vec<f64>,
+    relevant: Vec<usize>,
+    /// Second-order data of `traj` and `trial` (Newton only).
+    model: Model,
+    trial_model: Model,
+    /// The Newton system of the current inner iteration.
+    system: BlockTridiagonal,
+    rhs: Vec<f64>,
+    cholesky: BlockCholesky,
+    fixed: Vec<bool>,
+    /// Which pieces the Newton model has on: the model's [`Pieces`], then max_step (segment,
+    /// joint, side).
+    active: Vec<bool>,
     s_hist: Vec<Vec<f64>>,
     y_hist: Vec<Vec<f64>>,
     rho_hist: Vec<f64>,
     alpha: Vec<f64>,
     data: RobotData,
     jacobian: Matrix6xX<f64>,
+    hz: Vec<f64>,
 }
 
 impl TrajectoryOptimizer {
@@ -157,15 +517,24 @@ impl TrajectoryOptimizer {
         }
         let len = waypoints * dof;
         let dim = interior * dof;
+        let memory = if params.method == TrajoptMethod::Lbfgs { params.memory } else { 0 };
         Ok(TrajectoryOptimizer {
             lower: model.lower_limits(),
             upper: model.upper_limits(),
             data: model.data(),
             jacobian: Matrix6xX::zeros(dof),
-            s_hist: vec![vec![0.0; dim]; params.memory],
-            y_hist: vec![vec![0.0; dim]; params.memory],
-            rho_hist: vec![0.0; params.memory],
-            alpha: vec![0.0; params.memory],
+            hz: vec![0.0; dof * dof],
+            s_hist: vec![vec![0.0; dim]; memory],
+            y_hist: vec![vec![0.0; dim]; memory],
+            rho_hist: vec![0.0; memory],
+            alpha: vec![0.0; memory],
+            model: Model::new(dof, waypoints),
+            trial_model: Model::new(dof, waypoints),
+            system: BlockTridiagonal::new(dof, waypoints),
+            rhs: vec![0.0; len],
+            active: Vec::new(),
+            cholesky: BlockCholesky::new(dof, interior),
+            fixed: vec![false; len],
             params,
             waypoints,
             dof,
@@ -176,6 +545,15 @@ impl TrajectoryOptimizer {
             grad: vec![0.0; len],
             trial_grad: vec![0.0; len],
             direction: vec![0.0; len],
+            candidate: vec![0.0; len],
+            hd: vec![0.0; len],
+            hv: vec![0.0; len],
+            smooth_grad: vec![0.0; len],
+            piece_c: Vec::new(),
+            piece_w: Vec::new(),
+            line_f: Vec::new(),
+            line_g: Vec::new(),
+            relevant: Vec::new(),
         })
     }
 
@@ -198,26 +576,89 @@ impl TrajectoryOptimizer {
         }
     }
 
-    /// Cost and gradient of `traj` into `grad` (full N × n; callers use the interior).
-    fn evaluate(&mut self, features: &mut FeatureSet, weights: &[f64], which: Buffer) -> (f64, f64) {
-        let (traj, grad) = match which {
-            Buffer::Current => (&self.traj, &mut self.grad),
-            Buffer::Trial => (&self.trial, &mut self.trial_grad),
+    /// The cost the solver minimises — w·Φ(ξ) with the kinked features smoothed by `smoothing`,
+    /// plus the clearance and max_step penalties — at `trajectory` (N × n), and its gradient into
+    /// `grad` (N × n; the rows of the fixed start and goal included). Returns (cost, penalty).
+    pub fn objective(
+        &mut self,
+        features: &mut FeatureSet,
+        weights: &[f64],
+        trajectory: &[f64],
+        grad: &mut [f64],
+    ) -> Result<(f64, f64)> {
+        let (n, m) = (self.dof, self.waypoints);
+        if features.model().nq() != n {
+            return Err(PhriError::invalid("features", "belong to a robot with a different number of joints"));
+        }
+        check_vector("weights", weights, features.len())?;
+        for (arg, len) in [("trajectory", trajectory.len()), ("grad", grad.len())] {
+            if len != m * n {
+                return Err(PhriError::shape(arg, format!("({m}, {n})"), format!("{len} values")));
+            }
+        }
+        check_finite("trajectory", trajectory)?;
+        self.trial.copy_from_slice(trajectory);
+        let result = self.evaluate(features, weights, Buffer::Trial, Level::Gradient);
+        grad.copy_from_slice(&self.trial_grad);
+        Ok(result)
+    }
+
+    /// Cost (and derivatives, per `level`) of a buffer; the gradient covers all N × n entries.
+    /// With `Level::Hessian` the buffer's [`Model`] receives the smooth part's Hessian, the
+    /// penalties' gradient, and every clearance's linearisation (active or not).
+    fn evaluate(&mut self, features: &mut FeatureSet, weights: &[f64], which: Buffer, level: Level) -> (f64, f64) {
+        let (traj, grad, model) = match which {
+            Buffer::Current => (&self.traj, &mut self.grad, &mut self.model),
+            Buffer::Trial => (&self.trial, &mut self.trial_grad, &mut self.trial_model),
         };
-        let mut cost = features.weighted_cost_gradient_unchecked(traj, self.waypoints, weights, grad, self.params.smoothing);
+        let with_hessian = level == Level::Hessian;
+        let mut cost = features.weighted_cost_unchecked(
+            traj,
+            self.waypoints,
+            weights,
+            Some(grad),
+            if with_hessian { Some(&mut model.hess) } else { None },
+            if with_hessian { Some(&mut model.pieces) } else { None },
+            self.params.smoothing,
+        );
+        if with_hessian {
+            model.pen_grad.fill(0.0);
+        }
         let mut penalty = 0.0;
+        let n = self.dof;
         if !self.params.clearance.is_empty() {
-            let model = features.model();
-            let n = self.dof;
+            let robot = features.model().clone();
             for i in 1..self.waypoints - 1 {
-                model.forward_kinematics_unchecked(&traj[i * n..(i + 1) * n], &mut self.data);
+                let data = features.waypoint_data(traj, i);
                 for c in &self.params.clearance {
-                    let gap = c.min_z - model.frame_pose(c.frame, &self.data).translation.z;
+                    let gap = c.min_z - robot.frame_pose(c.frame, data).translation.z;
+                    if !(gap > 0.0 || with_hessian) {
+                        continue;
+                    }
+                    robot.frame_jacobian_unchecked(c.frame, data, &mut self.jacobian);
+                    if with_hessian {
+                        // ρ·gap² = ½·2ρ·gap², gap varying as gap − ∂z/∂q·Δq.
+                        let jac = &self.jacobian;
+                        model.pieces.set_segment(i);
+                        model.pieces.push(1.0, gap, 2.0 * c.weight, |j| -jac[(2, j)]);
+                    }
                     if gap > 0.0 {
                         penalty += c.weight * gap * gap;
-                        model.frame_jacobian_unchecked(c.frame, &self.data, &mut self.jacobian);
                         for j in 0..n {
-                            grad[i * n + j] -= 2.0 * c.weight * gap * self.jacobian[(2, j)];
+                            let g = -2.0 * c.weight * gap * self.jacobian[(2, j)];
+                            grad[i * n + j] += g;
+                            if with_hessian {
+                                model.pen_grad[i * n + j] += g;
+                            }
+                        }
+                        if with_hessian {
+                            // The curvature part of ∂²(ρ·gap²) = 2ρ·∇z·∇zᵀ − 2ρ·gap·∂²z; the
+                            // Gauss–Newton part enters the Newton model with the active set.
+                            position_hessian(&self.jacobian, &nalgebra::Vector3::z(), &mut self.hz);
+                            let block = model.hess.diag_mut(i);
+                            for (b, h) in block.iter_mut().zip(&self.hz) {
+                                *b -= 2.0 * c.weight * gap * h;
+                            }
                         }
                     }
                 }
@@ -225,7 +666,7 @@ impl TrajectoryOptimizer {
             cost += penalty;
         }
         if !self.params.max_step.is_empty() {
-            let (n, w) = (self.dof, self.params.step_weight);
+            let w = self.params.step_weight;
             let mut step_penalty = 0.0;
             for i in 1..self.waypoints {
                 for (j, limit) in self.params.max_step.iter().enumerate() {
@@ -236,6 +677,10 @@ impl TrajectoryOptimizer {
                         let g = 2.0 * w * excess * d.signum();
                         grad[i * n + j] += g;
                         grad[(i - 1) * n + j] -= g;
+                        if with_hessian {
+                            model.pen_grad[i * n + j] += g;
+                            model.pen_grad[(i - 1) * n + j] -= g;
+                        }
                     }
                 }
             }
@@ -250,6 +695,9 @@ impl TrajectoryOptimizer {
         let model = features.model();
         let n = self.dof;
         let mut worst: f64 = 0.0;
+        if self.params.clearance.is_empty() {
+            return worst;
+        }
         for i in 0..self.waypoints {
             model.forward_kinematics_unchecked(&traj[i * n..(i + 1) * n], &mut self.data);
             for c in &self.params.clearance {
@@ -341,14 +789,483 @@ impl TrajectoryOptimizer {
                 self.traj[k] = self.traj[k].clamp(self.lower[j], self.upper[j]);
             }
         }
-        Ok(self.run(features, weights, out))
+        let began = Instant::now();
+        let (iterations, evaluations, cost, penalty, converged) = match self.params.method {
+            TrajoptMethod::Newton => self.run_newton(features, weights, began),
+            TrajoptMethod::Lbfgs => self.run_lbfgs(features, weights, began),
+        };
+        out.copy_from_slice(&self.traj);
+        let traj = std::mem::take(&mut self.traj);
+        let max_violation = self.violation(features, &traj);
+        self.traj = traj;
+        Ok(TrajoptInfo {
+            iterations,
+            evaluations,
+            cost,
+            penalty,
+            max_violation,
+            converged,
+            seconds: began.elapsed().as_secs_f64(),
+        })
     }
 
-    fn run(&mut self, features: &mut FeatureSet, weights: &[f64], out: &mut [f64]) -> TrajoptInfo {
-        let began = Instant::now();
+    /// Marks the interior variables held at a bound (gradient pushing outward) and returns the
+    /// largest remaining gradient entry.
+    fn mark_fixed(&mut self) -> f64 {
+        let n = self.dof;
+        let mut largest: f64 = 0.0;
+        self.fixed.fill(true);
+        for i in 1..self.waypoints - 1 {
+            for j in 0..n {
+                let k = i * n + j;
+                let g = self.grad[k];
+                let fixed = (self.traj[k] <= self.lower[j] && g > 0.0) || (self.traj[k] >= self.upper[j] && g < 0.0);
+                self.fixed[k] = fixed;
+                if !fixed {
+                    largest = largest.max(g.abs());
+                }
+            }
+        }
+        largest
+    }
+
+    /// Sets up the model's pieces for one Newton step: the model's [`Pieces`], then both sides of
+    /// every max_step pair (½·2ρ·max(0, ±diff − limit)², exact since linear), with their curvature
+    /// `piece_c`, their lowest waypoint `piece_w`, their values at d = 0 in `line_f`, and marks
+    /// those on at d = 0.
+    fn prepare_pieces(&mut self) {
+        let (n, m) = (self.dof, self.waypoints);
+        let pieces = &self.model.pieces;
+        let steps = if self.params.max_step.is_empty() { 0 } else { 2 * m * n };
+        let count = pieces.len() + steps;
+        for v in [&mut self.piece_c, &mut self.line_f, &mut self.line_g] {
+            v.clear();
+            v.resize(count, 0.0);
+        }
+        self.piece_w.clear();
+        self.piece_w.resize(count, 0);
+        self.active.clear();
+        self.active.resize(count, false);
+        for (k, p) in pieces.list.iter().enumerate() {
+            self.piece_c[k] = p.c;
+            self.line_f[k] = p.f0;
+            self.piece_w[k] = if p.s < 1.0 { p.segment - 1 } else { p.segment };
+        }
+        if steps > 0 {
+            let (base, rho) = (pieces.len(), self.params.step_weight);
+            for i in 1..m {
+                for (j, limit) in self.params.max_step.iter().enumerate() {
+                    let diff = self.traj[i * n + j] - self.traj[(i - 1) * n + j];
+                    for (side, sign) in [(0, 1.0), (1, -1.0)] {
+                        let k = base + (i * n + j) * 2 + side;
+                        self.piece_c[k] = 2.0 * rho;
+                        self.line_f[k] = sign * diff - limit;
+                        self.piece_w[k] = i - 1;
+                    }
+                }
+            }
+        }
+        for k in 0..count {
+            self.active[k] = self.line_f[k] > 0.0;
+        }
+    }
+
+    /// The slopes a_k·v of every piece along a model step v, into `line_g`.
+    fn piece_slopes(&mut self, v: &[f64]) {
+        let (n, m) = (self.dof, self.waypoints);
+        let pieces = &self.model.pieces;
+        for (k, p) in pieces.list.iter().enumerate() {
+            self.line_g[k] = piece_dot(&pieces.a[k * n..(k + 1) * n], v, p.segment, p.s, n);
+        }
+        if !self.params.max_step.is_empty() {
+            let base = pieces.len();
+            for i in 1..m {
+                for j in 0..n {
+                    let dv = v[i * n + j] - v[(i - 1) * n + j];
+                    let k = base + (i * n + j) * 2;
+                    self.line_g[k] = dv;
+                    self.line_g[k + 1] = -dv;
+                }
+            }
+        }
+    }
+
+    /// Minimises the model along d + t·v, t ∈ [0, 1]: φ(t) = A·t + ½B·t² + Σ_k ½c_k·max(0, f_k +
+    /// t·g_k)², convex and piecewise quadratic (safeguarded Newton on φ', exact on each piece).
+    /// Returns (t, φ(0) − φ(t)); t = 0 when v is not a descent direction.
+    fn line_minimum(&mut self, a: f64, b: f64) -> (f64, f64) {
+        // Only pieces that are on somewhere in [0, 1] matter.
+        self.relevant.clear();
+        for k in 0..self.line_f.len() {
+            let (f, g) = (self.line_f[k], self.line_g[k]);
+            if f > 0.0 || f + g > 0.0 {
+                self.relevant.push(k);
+            }
+        }
+        let derivative = |t: f64| {
+            let (mut d1, mut d2) = (a + b * t, b);
+            for &k in &self.relevant {
+                let (f, g, c) = (self.line_f[k], self.line_g[k], self.piece_c[k]);
+                let x = f + t * g;
+                if x > 0.0 {
+                    d1 += c * x * g;
+                    d2 += c * g * g;
+                }
+            }
+            (d1, d2)
+        };
+        let (slope, _) = derivative(0.0);
+        if !(slope < 0.0) {
+            return (0.0, 0.0);
+        }
+        let (mut lo, mut hi) = (0.0, 1.0);
+        let (mut t, (mut d1, mut d2)) = (1.0, derivative(1.0));
+        if d1 > 0.0 {
+            for _ in 0..40 {
+                let newton = t - d1 / d2;
+                let next = if newton > lo && newton < hi && d2 > 0.0 { newton } else { 0.5 * (lo + hi) };
+                let (n1, n2) = derivative(next);
+                if n1 > 0.0 {
+                    hi = next;
+                } else {
+                    lo = next;
+                }
+                let done = (next - t).abs() <= 1e-14 * t.max(1e-300) || n1 == 0.0;
+                (t, d1, d2) = (next, n1, n2);
+                if done || hi - lo <= 1e-15 {
+                    break;
+                }
+            }
+        }
+        let mut drop = -(a * t + 0.5 * b * t * t);
+        for &k in &self.relevant {
+            let (f, g, c) = (self.line_f[k], self.line_g[k], self.piece_c[k]);
+            let (x0, x1) = (f.max(0.0), (f + t * g).max(0.0));
+            drop -= 0.5 * c * (x1 * x1 - x0 * x0);
+        }
+        (t, drop)
+    }
+
+    /// After a step t along the line: updates `line_f`, marks the pieces on, and returns the
+    /// lowest waypoint whose system blocks changed, if any did.
+    fn advance_pieces(&mut self, t: f64) -> Option<usize> {
+        let mut lowest: Option<usize> = None;
+        for k in 0..self.line_f.len() {
+            self.line_f[k] += t * self.line_g[k];
+            let on = self.line_f[k] > 0.0;
+            if on != self.active[k] {
+                self.active[k] = on;
+                let w = self.piece_w[k];
+                lowest = Some(lowest.map_or(w, |l| l.min(w)));
+            }
+        }
+        lowest
+    }
+
+    /// The Newton system for the pieces that are on: `system` = smooth Hessian + their Gauss–Newton
+    /// terms, `rhs` = −(smooth gradient + their linearised gradients).
+    fn assemble(&mut self) {
+        let (n, m) = (self.dof, self.waypoints);
+        let nn = n * n;
+        self.system.diag.copy_from_slice(&self.model.hess.diag);
+        self.system.off.copy_from_slice(&self.model.hess.off);
+        for k in 0..m * n {
+            self.rhs[k] = self.model.pen_grad[k] - self.grad[k];
+        }
+        let pieces = &self.model.pieces;
+        for (k, p) in pieces.list.iter().enumerate() {
+            if !self.active[k] {
+                continue;
+            }
+            // ½c·(f0 + a·Δq(s))², Δq(s) = (1−s)·Δ_{i−1} + s·Δ_i: gradient c·f0·a, Hessian c·a·aᵀ.
+            let a = &pieces.a[k * n..(k + 1) * n];
+            let (i, s, c, f0) = (p.segment, p.s, p.c, p.f0);
+            let weights = [(i - 1, 1.0 - s), (i, s)];
+            for (w, ws) in weights {
+                if ws == 0.0 || w == 0 || w == m - 1 {
+                    continue;
+                }
+                for r in 0..n {
+                    self.rhs[w * n + r] -= c * f0 * ws * a[r];
+                }
+                let block = &mut self.system.diag[w * nn..(w + 1) * nn];
+                for r in 0..n {
+                    let ar = c * ws * ws * a[r];
+                    for col in 0..n {
+                        block[r * n + col] += ar * a[col];
+                    }
+                }
+            }
+            if s > 0.0 && s < 1.0 && i >= 2 && i < m - 1 {
+                let block = &mut self.system.off[(i - 1) * nn..i * nn];
+                let cs = c * s * (1.0 - s);
+                for r in 0..n {
+                    for col in 0..n {
+                        block[r * n + col] += cs * a[r] * a[col];
+                    }
+                }
+            }
+        }
+        if !self.params.max_step.is_empty() {
+            let (base, rho) = (pieces.len(), self.params.step_weight);
+            for i in 1..m {
+                for (j, limit) in self.params.max_step.iter().enumerate() {
+                    let diff = self.traj[i * n + j] - self.traj[(i - 1) * n + j];
+                    for (side, sign) in [(0, 1.0), (1, -1.0)] {
+                        if !self.active[base + (i * n + j) * 2 + side] {
+                            continue;
+                        }
+                        // ρ·(sign·(diff + Δ_i − Δ_{i−1}) − limit)².
+                        let c0 = sign * diff - limit;
+                        self.rhs[i * n + j] -= 2.0 * rho * c0 * sign;
+                        self.rhs[(i - 1) * n + j] += 2.0 * rho * c0 * sign;
+                        self.system.diag[(i * n + j) * n + j] += 2.0 * rho;
+                        self.system.diag[((i - 1) * n + j) * n + j] += 2.0 * rho;
+                        self.system.off[((i - 1) * n + j) * n + j] -= 2.0 * rho;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Factors `system` + λI, from block `from` on (earlier blocks kept from the last factorisation
+    /// with the same λ), raising λ until it is positive definite. False if no λ ≤ `lambda_max` is.
+    fn factor_system(&mut self, lambda: &mut f64, from: usize, scale: f64, lambda_max: f64) -> bool {
+        let mut from = from;
+        while *lambda <= lambda_max {
+            if self.cholesky.factor_from(&self.system, 1, *lambda, &self.fixed, from) {
+                return true;
+            }
+            *lambda = (*lambda * 4.0).max(1e-4 * scale);
+            from = 0;
+        }
+        false
+    }
+
+    /// Solves the factored system for the current `rhs` into `candidate` (free interior variables).
+    fn solve_system(&mut self) {
+        let (n, m) = (self.dof, self.waypoints);
+        for k in 0..m * n {
+            let interior = k >= n && k < (m - 1) * n;
+            self.candidate[k] = if interior && !self.fixed[k] { self.rhs[k] } else { 0.0 };
+        }
+        let mut x = std::mem::take(&mut self.candidate);
+        self.cholesky.solve(&mut x, 1);
+        self.candidate = x;
+    }
+
+    /// y = (H_s + λI)·x over the interior waypoints (H_s the smooth Hessian of the model).
+    fn smooth_times(&self, x: &[f64], y: &mut [f64], lambda: f64) {
+        let (n, m) = (self.dof, self.waypoints);
+        let nn = n * n;
+        let h = &self.model.hess;
+        for i in 1..m - 1 {
+            for r in 0..n {
+                let row = &h.diag[i * nn + r * n..i * nn + (r + 1) * n];
+                let mut acc = dot(row, &x[i * n..(i + 1) * n]) + lambda * x[i * n + r];
+                if i + 1 < m - 1 {
+                    acc += dot(&h.off[i * nn + r * n..i * nn + (r + 1) * n], &x[(i + 1) * n..(i + 2) * n]);
+                }
+                if i > 1 {
+                    let o = &h.off[(i - 1) * nn..i * nn];
+                    for c in 0..n {
+                        acc += o[c * n + r] * x[(i - 1) * n + c];
+                    }
+                }
+                y[i * n + r] = acc;
+            }
+        }
+    }
+
+    /// The Newton step of one outer iteration into `direction`: the minimiser of the model
+    /// m(d) = g_sᵀd + ½dᵀ(H_s + λI)d + Σ_k ½c_k·max(0, f_k + a_k·d)² (smooth part, plus the pieces)
+    /// found by a damped semismooth Newton iteration: solve with the pieces that are on, minimise
+    /// the model exactly along the way to that solution, re-mark the pieces; stop when they agree.
+    /// Returns the model decrease m(0) − m(d) and whether the pieces agree with d, or None if no
+    /// damping makes the system positive definite.
+    fn newton_step(&mut self, lambda: &mut f64, scale: f64, lambda_max: f64) -> Option<(f64, bool)> {
+        let (n, m) = (self.dof, self.waypoints);
+        let len = n * m;
+        for k in 0..len {
+            self.smooth_grad[k] = self.grad[k] - self.model.pen_grad[k];
+        }
+        'restart: loop {
+            self.prepare_pieces();
+            self.direction.fill(0.0);
+            self.hd.fill(0.0);
+            let mut decrease = 0.0;
+            let mut changed_from: Option<usize> = Some(0);
+            let mut factored_lambda = f64::NAN;
+            let mut consistent = false;
+            for _ in 0..MAX_INNER {
+                let Some(lowest) = changed_from else {
+                    consistent = true;
+                    break;
+                };
+                let from = if factored_lambda == *lambda { lowest.saturating_sub(1) } else { 0 };
+                self.assemble();
+                let before = *lambda;
+                if !self.factor_system(lambda, from, scale, lambda_max) {
+                    return None;
+                }
+                if *lambda != before && !factored_lambda.is_nan() {
+                    // λ rose after a step was taken: the model changed; start over.
+                    continue 'restart;
+                }
+                factored_lambda = *lambda;
+                self.solve_system();
+                // v = d* − d, A = ∇m_s(d)·v, B = vᵀ(H_s + λI)v.
+                for k in 0..len {
+                    self.candidate[k] -= self.direction[k];
+                }
+                let mut hv = std::mem::take(&mut self.hv);
+                self.smooth_times(&self.candidate, &mut hv, *lambda);
+                let (mut a, mut b) = (0.0, 0.0);
+                for k in n..len - n {
+                    let v = self.candidate[k];
+                    a += (self.smooth_grad[k] + self.hd[k]) * v;
+                    b += hv[k] * v;
+                }
+                let v = std::mem::take(&mut self.candidate);
+                self.piece_slopes(&v);
+                self.candidate = v;
+                let (t, drop) = self.line_minimum(a, b);
+                if t == 0.0 {
+                    // d already minimises the model.
+                    consistent = true;
+                    self.hv = hv;
+                    break;
+                }
+                for k in n..len - n {
+                    self.direction[k] += t * self.candidate[k];
+                    self.hd[k] += t * hv[k];
+                }
+                self.hv = hv;
+                decrease += drop;
+                changed_from = self.advance_pieces(t);
+                if changed_from.is_none() && t < 1.0 - 1e-9 {
+                    // Stopped short without a piece changing: rounding; d is as good as it gets.
+                    consistent = t > 0.999;
+                    break;
+                }
+            }
+            return Some((decrease, consistent));
+        }
+    }
+
+    /// Projected Newton on a model that keeps the kinked terms piecewise: the smooth part is
+    /// quadratic (its damped Hessian), each penalty or hinge piece is ½c·max(0, f0 + a·d)² with f
+    /// linearised at the current plan (max_step exactly), minimised by [`newton_step`]; then an
+    /// interpolating backtracking line search on the true cost. Returns (iterations, evaluations,
+    /// cost, penalty, converged).
+    ///
+    /// [`newton_step`]: TrajectoryOptimizer::newton_step
+    fn run_newton(&mut self, features: &mut FeatureSet, weights: &[f64], began: Instant) -> (usize, usize, f64, f64, bool) {
         let (n, m) = (self.dof, self.waypoints);
         let (lo, hi) = (n, (m - 1) * n); // interior range
-        let (mut cost, mut penalty) = self.evaluate(features, weights, Buffer::Current);
+        let (mut cost, mut penalty) = self.evaluate(features, weights, Buffer::Current, Level::Hessian);
+        let mut evaluations = 1;
+        let mut iterations = 0;
+        let mut converged = false;
+        // Damping relative to the mean curvature on the diagonal.
+        let scale = (1..m - 1).map(|i| (0..n).map(|j| self.model.hess.diag(i)[j * n + j].abs()).sum::<f64>()).sum::<f64>()
+            / ((m - 2) * n) as f64;
+        let scale = if scale.is_finite() && scale > 0.0 { scale } else { 1.0 };
+        let (lambda_min, lambda_max) = (1e-8 * scale, 1e12 * scale);
+        let mut lambda = lambda_min;
+        let mut largest = self.mark_fixed();
+        while iterations < self.params.max_iterations {
+            if largest <= self.params.gradient_tolerance {
+                converged = true;
+                break;
+            }
+            if self.params.max_time.is_some_and(|t| began.elapsed() >= t) {
+                break;
+            }
+            iterations += 1;
+            lambda = (lambda * 0.25).max(lambda_min);
+            let Some((predicted, consistent)) = self.newton_step(&mut lambda, scale, lambda_max) else { break };
+            // Clip the step to the joint limits.
+            for i in 1..m - 1 {
+                for j in 0..n {
+                    let k = i * n + j;
+                    let x = (self.traj[k] + self.direction[k]).clamp(self.lower[j], self.upper[j]);
+                    self.direction[k] = x - self.traj[k];
+                }
+            }
+            let slope = dot(&self.grad[lo..hi], &self.direction[lo..hi]);
+            if consistent && predicted <= self.params.relative_tolerance * cost.abs().max(1e-300) && lambda <= 1e-4 * scale {
+                // The model predicts no further decrease worth a step: converged.
+                converged = true;
+                break;
+            }
+            if !(slope < 0.0) {
+                // Not a descent direction (the pieces' model is only linearised): damp harder.
+                lambda = (lambda * 16.0).max(1e-4 * scale);
+                continue;
+            }
+            // Backtracking along the projected path x(α) = clip(x + α·d), α from 1, with a
+            // quadratic interpolation of the cost for the next α (kept within [0.1, 0.5]·α).
+            let mut alpha = 1.0;
+            let mut accepted = false;
+            let (mut new_cost, mut new_penalty) = (cost, penalty);
+            for _ in 0..MAX_BACKTRACKS {
+                for i in 1..m - 1 {
+                    for j in 0..n {
+                        let k = i * n + j;
+                        self.trial[k] = (self.traj[k] + alpha * self.direction[k]).clamp(self.lower[j], self.upper[j]);
+                    }
+                }
+                self.trial[..lo].copy_from_slice(&self.traj[..lo]);
+                self.trial[hi..].copy_from_slice(&self.traj[hi..]);
+                (new_cost, new_penalty) = self.evaluate(features, weights, Buffer::Trial, Level::Hessian);
+                evaluations += 1;
+                if new_cost.is_finite() && new_cost <= cost + 1e-4 * alpha * slope {
+                    accepted = true;
+                    break;
+                }
+                let next = if new_cost.is_finite() {
+                    let curvature = new_cost - cost - slope * alpha;
+                    if curvature > 0.0 {
+                        -slope * alpha * alpha / (2.0 * curvature)
+                    } else {
+                        0.5 * alpha
+                    }
+                } else {
+                    0.1 * alpha
+                };
+                alpha = next.clamp(0.1 * alpha, 0.5 * alpha);
+            }
+            if !accepted {
+                // The model misleads at this damping: damp harder and try again.
+                lambda = (lambda * 16.0).max(1e-4 * scale);
+                if lambda > lambda_max {
+                    converged = cost.is_finite(); // no step of any length helps: stationary
+                    break;
+                }
+                continue;
+            }
+            std::mem::swap(&mut self.traj, &mut self.trial);
+            std::mem::swap(&mut self.grad, &mut self.trial_grad);
+            std::mem::swap(&mut self.model, &mut self.trial_model);
+            let decrease = cost - new_cost;
+            cost = new_cost;
+            penalty = new_penalty;
+            largest = self.mark_fixed();
+            if alpha == 1.0 && decrease <= self.params.relative_tolerance * cost.abs().max(1e-300) {
+                converged = true;
+                break;
+            }
+        }
+        (iterations, evaluations, cost, penalty, converged)
+    }
+
+    /// Projected L-BFGS with H0 = γ·metric⁻¹; returns (iterations, evaluations, cost, penalty,
+    /// converged).
+    fn run_lbfgs(&mut self, features: &mut FeatureSet, weights: &[f64], began: Instant) -> (usize, usize, f64, f64, bool) {
+        let (n, m) = (self.dof, self.waypoints);
+        let (lo, hi) = (n, (m - 1) * n); // interior range
+        let (mut cost, mut penalty) = self.evaluate(features, weights, Buffer::Current, Level::Gradient);
         let mut evaluations = 1;
         let mut stored = 0usize; // history entries in use
         let mut newest = 0usize;
@@ -411,7 +1328,7 @@ impl TrajectoryOptimizer {
                         self.trial[k] = (self.traj[k] - step * self.direction[k]).clamp(self.lower[j], self.upper[j]);
                     }
                 }
-                (new_cost, new_penalty) = self.evaluate(features, weights, Buffer::Trial);
+                (new_cost, new_penalty) = self.evaluate(features, weights, Buffer::Trial, Level::Gradient);
                 evaluations += 1;
                 let moved: f64 = (lo..hi).map(|k| self.grad[k] * (self.trial[k] - self.traj[k])).sum();
                 if new_cost.is_finite() && new_cost <= cost + 1e-4 * moved.min(0.0) {
@@ -462,11 +1379,25 @@ impl TrajectoryOptimizer {
                 break;
             }
         }
-        out.copy_from_slice(&self.traj);
-        let traj = std::mem::take(&mut self.traj);
-        let max_violation = self.violation(features, &traj);
-        self.traj = traj;
-        TrajoptInfo { iterations, evaluations, cost, penalty, max_violation, converged, seconds: began.elapsed().as_secs_f64() }
+        (iterations, evaluations, cost, penalty, converged)
+    }
+}
+
+/// Second-order data of one trajectory for the Newton model.
+#[derive(Debug, Clone)]
+struct Model {
+    /// Hessian of the smooth part: features, plus the penalties' curvature terms.
+    hess: BlockTridiagonal,
+    /// The share of the gradient of the pieces that are on (N × n).
+    pen_grad: Vec<f64>,
+    /// Kinked terms kept out of `hess` and modelled piecewise: every clearance (on or off) and the
+    /// features' inactive hinge samples near their kink.
+    pieces: Pieces,
+}
+
+impl Model {
+    fn new(n: usize, waypoints: usize) -> Self {
+        Model { hess: BlockTridiagonal::new(n, waypoints), pen_grad: vec![0.0; waypoints * n], pieces: Pieces::new(n) }
     }
 }
 
@@ -474,6 +1405,17 @@ impl TrajectoryOptimizer {
 enum Buffer {
     Current,
     Trial,
+}
+
+/// a·Δq(s) for a piece at (segment − 1, segment), Δq(s) = (1 − s)·d_{i−1} + s·d_i.
+#[inline]
+fn piece_dot(a: &[f64], d: &[f64], segment: usize, s: f64, n: usize) -> f64 {
+    let (d0, d1) = (&d[(segment - 1) * n..segment * n], &d[segment * n..(segment + 1) * n]);
+    let mut f = 0.0;
+    for j in 0..n {
+        f += a[j] * ((1.0 - s) * d0[j] + s * d1[j]);
+    }
+    f
 }
 
 #[inline]
@@ -484,4 +1426,109 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 #[inline]
 fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
     y.iter_mut().zip(x).for_each(|(y, x)| *y += a * x);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A random symmetric positive definite block-tridiagonal matrix (diagonally dominant).
+    fn random_matrix(n: usize, blocks: usize, seed: u64) -> BlockTridiagonal {
+        let mut state = seed;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            2.0 * ((state >> 11) as f64 / (1u64 << 53) as f64) - 1.0
+        };
+        let mut h = BlockTridiagonal::new(n, blocks);
+        for b in 0..blocks {
+            for r in 0..n {
+                for c in 0..=r {
+                    let v = uniform();
+                    h.diag[(b * n + r) * n + c] = v;
+                    h.diag[(b * n + c) * n + r] = v;
+                }
+                h.diag[(b * n + r) * n + r] += 4.0 * n as f64;
+            }
+            if b + 1 < blocks {
+                for k in 0..n * n {
+                    h.off[b * n * n + k] = uniform();
+                }
+            }
+        }
+        h
+    }
+
+    fn dense(h: &BlockTridiagonal, first: usize, blocks: usize) -> nalgebra::DMatrix<f64> {
+        let n = h.dof();
+        let mut a = nalgebra::DMatrix::zeros(blocks * n, blocks * n);
+        for b in 0..blocks {
+            for r in 0..n {
+                for c in 0..n {
+                    a[(b * n + r, b * n + c)] = h.diag(first + b)[r * n + c];
+                    if b + 1 < blocks {
+                        a[(b * n + r, (b + 1) * n + c)] = h.off(first + b)[r * n + c];
+                        a[((b + 1) * n + c, b * n + r)] = h.off(first + b)[r * n + c];
+                    }
+                }
+            }
+        }
+        a
+    }
+
+    #[test]
+    fn block_cholesky_solves_like_a_dense_solver_for_any_block_size() {
+        for n in [3, 6, 7] {
+            let (waypoints, first) = (12, 1);
+            let blocks = waypoints - 2;
+            let h = random_matrix(n, waypoints, 7 + n as u64);
+            let mut fixed = vec![false; waypoints * n];
+            fixed[3 * n + 1] = true; // one variable held at a bound
+            let mut chol = BlockCholesky::new(n, blocks);
+            assert!(chol.factor_from(&h, first, 0.5, &fixed, 0));
+            let mut x: Vec<f64> = (0..waypoints * n).map(|k| (k as f64 * 0.37).sin()).collect();
+            let rhs = x.clone();
+            chol.solve(&mut x, first);
+            // The same system, dense: fixed variables decoupled, λ on the diagonal.
+            let mut a = dense(&h, first, blocks);
+            let mut b = nalgebra::DVector::from_column_slice(&rhs[first * n..(first + blocks) * n]);
+            for k in 0..blocks * n {
+                a[(k, k)] += 0.5;
+            }
+            let f = 2 * n + 1; // waypoint 3 is block 2
+            for k in 0..blocks * n {
+                a[(f, k)] = 0.0;
+                a[(k, f)] = 0.0;
+            }
+            a[(f, f)] = 1.0;
+            b[f] = rhs[3 * n + 1];
+            let expect = a.lu().solve(&b).expect("non-singular");
+            for k in 0..blocks * n {
+                assert!(
+                    (x[first * n + k] - expect[k]).abs() < 1e-12,
+                    "n = {n}, entry {k}: {} vs {}",
+                    x[first * n + k],
+                    expect[k]
+                );
+            }
+            // Refactoring from a later block after changing only later blocks gives the same factors.
+            let mut h2 = h.clone();
+            h2.diag[(7 * n) * n] += 1.0;
+            let mut full = BlockCholesky::new(n, blocks);
+            assert!(full.factor_from(&h2, first, 0.5, &fixed, 0));
+            assert!(chol.factor_from(&h2, first, 0.5, &fixed, 7 - first));
+            assert_eq!(full.l, chol.l);
+            assert_eq!(full.m, chol.m);
+        }
+    }
+
+    #[test]
+    fn an_indefinite_matrix_does_not_factor() {
+        let mut h = random_matrix(7, 6, 3);
+        h.diag[(2 * 7 + 4) * 7 + 4] = -50.0;
+        let mut chol = BlockCholesky::new(7, 4);
+        assert!(!chol.factor_from(&h, 1, 0.0, &[false; 42], 0));
+        assert!(chol.factor_from(&h, 1, 100.0, &[false; 42], 0));
+    }
 }

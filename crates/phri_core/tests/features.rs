@@ -6,6 +6,7 @@ use std::sync::Arc;
 
 use common::{deg, jaco2, within_limits};
 use phri_core::features::{FeatureSet, SceneParams, BUILTIN_FEATURES};
+use phri_core::trajopt::BlockTridiagonal;
 use proptest::prelude::*;
 
 fn feature_set(names: &[&str]) -> FeatureSet {
@@ -129,4 +130,136 @@ proptest! {
             prop_assert!((g[v] - e).abs() < 1e-9);
         }
     }
+}
+
+/// Central finite differences of the gradient, column `v`, of the weighted cost.
+fn gradient_difference(fs: &mut FeatureSet, xi: &[f64], w: &[f64], smoothing: f64, v: usize, h: f64) -> Vec<f64> {
+    let n = 7;
+    let waypoints = xi.len() / n;
+    let mut hess = BlockTridiagonal::new(n, waypoints);
+    let (mut gp, mut gm) = (vec![0.0; xi.len()], vec![0.0; xi.len()]);
+    let mut x = xi.to_vec();
+    x[v] += h;
+    fs.weighted_cost_curvature(&x, w, smoothing, &mut gp, &mut hess).unwrap();
+    x[v] -= 2.0 * h;
+    fs.weighted_cost_curvature(&x, w, smoothing, &mut gm, &mut hess).unwrap();
+    gp.iter().zip(&gm).map(|(a, b)| (a - b) / (2.0 * h)).collect()
+}
+
+/// Entry (r, c) of a block-tridiagonal matrix over N × n variables (0 outside the band).
+fn entry(h: &BlockTridiagonal, r: usize, c: usize) -> f64 {
+    let n = h.dof();
+    let (br, bc) = (r / n, c / n);
+    match br as isize - bc as isize {
+        0 => h.diag(br)[(r % n) * n + c % n],
+        -1 => h.off(br)[(r % n) * n + c % n],
+        1 => h.off(bc)[(c % n) * n + r % n],
+        _ => 0.0,
+    }
+}
+
+#[test]
+fn second_derivatives_of_smooth_features_match_finite_differences() {
+    // Smooth features: the optimiser's curvature is their exact Hessian.
+    let names = ["efficiency", "table", "coffee_dot", "origin"];
+    let mut fs = feature_set(&names);
+    let model = jaco2();
+    let w = [1.0, 0.7, 1.3, 0.4];
+    for seed in 0..6 {
+        let u: Vec<f64> = (0..14).map(|k| 0.1 + 0.8 * (((seed * 14 + k) as f64) * 0.618).fract()).collect();
+        let xi = trajectory(&within_limits(&model, &u[..7]), &within_limits(&model, &u[7..]), 5, 0.4);
+        let mut hess = BlockTridiagonal::new(7, 5);
+        let mut grad = vec![0.0; xi.len()];
+        fs.weighted_cost_curvature(&xi, &w, 0.0, &mut grad, &mut hess).unwrap();
+        for v in 0..xi.len() {
+            let fd = gradient_difference(&mut fs, &xi, &w, 0.0, v, 1e-6);
+            for (r, fd) in fd.iter().enumerate() {
+                let an = entry(&hess, r, v);
+                assert!((fd - an).abs() < 2e-6 * (1.0 + an.abs()), "seed {seed}: H[{r}, {v}] fd {fd} vs {an}");
+            }
+        }
+    }
+}
+
+#[test]
+fn hinge_curvature_is_exact_inside_the_quadratic_zone() {
+    // A trajectory that grazes the human keep-out circle: every active sample inside the smoothing
+    // zone, where the smoothed hinge is C² and its curvature is exact.
+    let model = Arc::new(jaco2());
+    let frame = model.frame_id("j2s7s300_link_7").unwrap();
+    let delta = 0.2;
+    let scene = SceneParams { radius: 0.4, ..Default::default() };
+    let mut fs = FeatureSet::from_names(model.clone(), frame, &["human"], &scene).unwrap();
+    let a = deg([210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8]);
+    let b = deg([210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4]);
+    // Find a blend of the two poses whose link_7 origin lies 5 cm inside the circle.
+    let mut xi = trajectory(&a, &b, 4, 0.0);
+    let mut per = vec![0.0; 3];
+    fs.per_segment(&xi, &mut per).unwrap();
+    assert!(per.iter().any(|v| *v > 0.0), "the straight line must enter the circle: {per:?}");
+    // Shrink towards the start until the deepest sample is within the zone.
+    for _ in 0..40 {
+        let model2 = jaco2();
+        let mut d = model2.data();
+        let mut deepest: f64 = 0.0;
+        for i in 0..3 {
+            for k in 1..=4 {
+                let s = k as f64 / 4.0;
+                let q: Vec<f64> = (0..7).map(|j| xi[i * 7 + j] + s * (xi[(i + 1) * 7 + j] - xi[i * 7 + j])).collect();
+                model2.forward_kinematics(&q, &mut d).unwrap();
+                let p = model2.frame_pose(frame, &d).translation.vector;
+                deepest = deepest.max(0.4 - (p.x.powi(2) + (p.y - 0.2).powi(2)).sqrt());
+            }
+        }
+        if deepest < 0.5 * delta {
+            break;
+        }
+        for v in xi.iter_mut().zip(a.iter().cycle()) {
+            *v.0 = *v.1 + 0.9 * (*v.0 - *v.1);
+        }
+    }
+    let mut hess = BlockTridiagonal::new(7, 4);
+    let mut grad = vec![0.0; xi.len()];
+    fs.weighted_cost_curvature(&xi, &[1.0], delta, &mut grad, &mut hess).unwrap();
+    assert!((0..xi.len()).any(|r| entry(&hess, r, r).abs() > 1e-3), "no sample inside the circle");
+    for v in 7..21 {
+        let fd = gradient_difference(&mut fs, &xi, &[1.0], delta, v, 1e-6);
+        for (r, fd) in fd.iter().enumerate() {
+            let an = entry(&hess, r, v);
+            assert!((fd - an).abs() < 1e-5 * (1.0 + an.abs()), "H[{r}, {v}] fd {fd} vs {an}");
+        }
+    }
+}
+
+#[test]
+fn the_keepout_skip_changes_nothing() {
+    // The conservative skip must give exactly what evaluating every sample gives: compare the
+    // per-segment keep-out counts with a direct evaluation of all samples.
+    let model = Arc::new(jaco2());
+    let frame = model.frame_id("j2s7s300_link_7").unwrap();
+    let mut fs = FeatureSet::from_names(model.clone(), frame, &["laptop", "human"], &SceneParams::default()).unwrap();
+    let mut data = model.data();
+    let mut checked = 0;
+    for seed in 0..40u64 {
+        let u: Vec<f64> = (0..14).map(|k| (((seed * 14 + k) as f64 + 0.5) * 0.754_877_666).fract()).collect();
+        let xi = trajectory(&within_limits(&model, &u[..7]), &within_limits(&model, &u[7..]), 9, 0.5);
+        let mut per = vec![0.0; 8 * 2];
+        fs.per_segment(&xi, &mut per).unwrap();
+        for i in 1..9 {
+            for (f, c) in [(0, [-0.7929, -0.1]), (1, [0.0, 0.2])] {
+                let mut expect = 0.0;
+                for k in 1..=4 {
+                    let s = k as f64 / 4.0;
+                    let q: Vec<f64> = (0..7).map(|j| xi[(i - 1) * 7 + j] + s * (xi[i * 7 + j] - xi[(i - 1) * 7 + j])).collect();
+                    model.forward_kinematics(&q, &mut data).unwrap();
+                    let p = model.frame_pose(frame, &data).translation.vector;
+                    expect += (0.4 - ((p.x - c[0]).powi(2) + (p.y - c[1]).powi(2)).sqrt()).max(0.0);
+                }
+                let got = per[(i - 1) * 2 + f];
+                assert!((got - expect).abs() < 1e-12, "seed {seed} segment {i} feature {f}: {got} vs {expect}");
+                checked += usize::from(expect > 0.0);
+            }
+        }
+    }
+    assert!(checked > 20, "too few segments entered a circle ({checked})");
 }

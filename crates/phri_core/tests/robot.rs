@@ -192,7 +192,7 @@ fn a_payload_adds_its_weight_to_the_gravity_torques() {
     assert!((g1[1] - g0[1]).abs() > 0.5, "{g0:?} {g1:?}");
     assert!(m.clone().with_payload(cup, -1.0, nalgebra::Vector3::zeros(), nalgebra::Matrix3::zeros()).is_err());
     let not_physical = [
-        -nalgebra::Matrix3::identity(),                                          // negative moments
+        -nalgebra::Matrix3::identity(),                                           // negative moments
         nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, 1.0, 3.0)), // 3 > 1 + 1
         nalgebra::Matrix3::new(1.0, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),      // not symmetric
     ];

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use common::{deg, jaco2};
 use phri_core::features::{FeatureSet, SceneParams};
-use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
+use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptMethod, TrajoptParams};
 
 const PICK_BASIC: [f64; 7] = [104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8];
 const PICK_SHELF: [f64; 7] = [210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8];
@@ -94,4 +94,104 @@ fn bad_problems_are_typed_errors() {
     assert!(opt.solve(&mut fs, &[1.0, 1.0], &[0.0; 7], &goal, None, &mut plan).is_err(), "q = 0 violates joint 2's limits");
     assert!(opt.solve(&mut fs, &[1.0, 1.0], &start, &goal, Some(&[0.0; 7]), &mut plan).is_err());
     assert!(TrajectoryOptimizer::new(&fs, 2, TrajoptParams::default()).is_err());
+}
+
+/// The study's planner (python/phri/sim/episode.py): tool point 0.1016 m and link_7 0.06 m above the
+/// table top, max_step = 0.5 × velocity limit × spacing.
+fn study_setup(feature: &str, waypoints: usize, method: TrajoptMethod) -> (FeatureSet, TrajectoryOptimizer) {
+    let model = Arc::new(jaco2());
+    let l7 = model.frame_id("j2s7s300_link_7").unwrap();
+    let ee = model.frame_id("j2s7s300_end_effector").unwrap();
+    let fs = FeatureSet::from_names(model.clone(), l7, &["efficiency", feature], &SceneParams::default()).unwrap();
+    let spacing = 15.0 / (waypoints - 1) as f64;
+    let params = TrajoptParams {
+        clearance: vec![
+            Clearance { frame: ee, min_z: -0.1016 + 0.1016, weight: 1e3 },
+            Clearance { frame: l7, min_z: -0.1016 + 0.06, weight: 1e3 },
+        ],
+        max_step: model.velocity_limits().iter().map(|v| 0.5 * v * spacing).collect(),
+        method,
+        ..Default::default()
+    };
+    let opt = TrajectoryOptimizer::new(&fs, waypoints, params).unwrap();
+    (fs, opt)
+}
+
+#[test]
+fn the_study_planner_converges_on_every_task_at_31_and_100_waypoints() {
+    for waypoints in [31, 100] {
+        for (feature, start, goal, weight) in tasks() {
+            let (mut fs, mut opt) = study_setup(feature, waypoints, TrajoptMethod::Newton);
+            let (start, goal) = (deg(start), deg(goal));
+            let mut plan0 = vec![0.0; waypoints * 7];
+            let info0 = opt.solve(&mut fs, &[1.0, 0.0], &start, &goal, None, &mut plan0).unwrap();
+            let mut plan = vec![0.0; waypoints * 7];
+            let info = opt.solve(&mut fs, &[1.0, weight], &start, &goal, None, &mut plan).unwrap();
+            let (mut phi0, mut phi) = ([0.0; 2], [0.0; 2]);
+            fs.phi(&plan0, &mut phi0).unwrap();
+            fs.phi(&plan, &mut phi).unwrap();
+            eprintln!("{feature} N={waypoints}: {info:?}");
+            assert!(info.converged && info0.converged, "{feature} N={waypoints}: {info:?} {info0:?}");
+            assert!(phi[1] < phi0[1] - 1e-3, "{feature} N={waypoints}: {} !< {}", phi[1], phi0[1]);
+            assert!(info.max_violation < 1e-3, "{feature}: clearance violated by {}", info.max_violation);
+            assert_eq!(&plan[..7], &start[..]);
+            assert_eq!(&plan[(waypoints - 1) * 7..], &goal[..]);
+            // The objective at the plan is what the solve reports, with a vanishing gradient.
+            let mut grad = vec![0.0; waypoints * 7];
+            let (cost, penalty) = opt.objective(&mut fs, &[1.0, weight], &plan, &mut grad).unwrap();
+            assert_eq!((cost, penalty), (info.cost, info.penalty));
+            let largest = grad[7..(waypoints - 1) * 7].iter().fold(0.0f64, |a, g| a.max(g.abs()));
+            assert!(largest < 1e-4, "{feature} N={waypoints}: gradient {largest}");
+        }
+    }
+}
+
+#[test]
+fn newton_reaches_the_cost_of_lbfgs_and_the_objective_gradient_is_right() {
+    for (feature, start, goal, weight) in tasks() {
+        let (start, goal) = (deg(start), deg(goal));
+        let (mut fs, mut newton) = study_setup(feature, 31, TrajoptMethod::Newton);
+        let (_, mut lbfgs) = study_setup(feature, 31, TrajoptMethod::Lbfgs);
+        let (mut a, mut b) = (vec![0.0; 31 * 7], vec![0.0; 31 * 7]);
+        let na = newton.solve(&mut fs, &[1.0, weight], &start, &goal, None, &mut a).unwrap();
+        let nb = lbfgs.solve(&mut fs, &[1.0, weight], &start, &goal, None, &mut b).unwrap();
+        eprintln!("{feature}: newton {na:?}\n        lbfgs {nb:?}");
+        assert!(na.cost <= nb.cost + 1e-6, "{feature}: newton {} vs lbfgs {}", na.cost, nb.cost);
+        // Finite differences of the objective along a few coordinates of a perturbed plan.
+        let x: Vec<f64> = a.iter().enumerate().map(|(k, v)| v + 0.01 * ((k as f64) * 0.7).sin()).collect();
+        let mut x = x;
+        x[..7].copy_from_slice(&start);
+        x[30 * 7..].copy_from_slice(&goal);
+        let mut g = vec![0.0; 31 * 7];
+        newton.objective(&mut fs, &[1.0, weight], &x, &mut g).unwrap();
+        let mut scratch = vec![0.0; 31 * 7];
+        for v in (7..30 * 7).step_by(11) {
+            let h = 1e-6;
+            let mut xp = x.clone();
+            xp[v] += h;
+            let (cp, _) = newton.objective(&mut fs, &[1.0, weight], &xp, &mut scratch).unwrap();
+            xp[v] -= 2.0 * h;
+            let (cm, _) = newton.objective(&mut fs, &[1.0, weight], &xp, &mut scratch).unwrap();
+            let fd = (cp - cm) / (2.0 * h);
+            assert!((fd - g[v]).abs() < 1e-4 * (1.0 + g[v].abs()), "{feature} d/dx[{v}]: fd {fd} vs {}", g[v]);
+        }
+    }
+}
+
+#[test]
+fn warm_replans_after_a_weight_step_are_deterministic_and_not_worse_than_cold() {
+    for (feature, start, goal, weight) in tasks() {
+        let (start, goal) = (deg(start), deg(goal));
+        let (mut fs, mut opt) = study_setup(feature, 31, TrajoptMethod::Newton);
+        let mut base = vec![0.0; 31 * 7];
+        opt.solve(&mut fs, &[1.0, 0.0], &start, &goal, None, &mut base).unwrap();
+        let w = [1.0, 0.3 * weight];
+        let (mut warm, mut again, mut cold) = (vec![0.0; 31 * 7], vec![0.0; 31 * 7], vec![0.0; 31 * 7]);
+        let iw = opt.solve(&mut fs, &w, &start, &goal, Some(&base), &mut warm).unwrap();
+        opt.solve(&mut fs, &w, &start, &goal, Some(&base), &mut again).unwrap();
+        let ic = opt.solve(&mut fs, &w, &start, &goal, None, &mut cold).unwrap();
+        assert_eq!(warm, again, "{feature}: same inputs, same plan");
+        assert!(iw.converged, "{feature}: {iw:?}");
+        assert!(iw.cost <= ic.cost + 1e-6, "{feature}: warm {} vs cold {}", iw.cost, ic.cost);
+    }
 }

@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use phri_core::features::FeatureSet;
-use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptInfo, TrajoptParams};
+use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptInfo, TrajoptMethod, TrajoptParams};
 use pyo3::prelude::*;
 
 use crate::arrays::{matrix, vector, ArrayIn};
@@ -49,10 +49,12 @@ impl PyTrajoptInfo {
     }
 }
 
-/// Gradient trajectory optimisation over `waypoints` rows with fixed start and goal, joint limits as
+/// Trajectory optimisation over `waypoints` rows with fixed start and goal, joint limits as
 /// bounds, `clearance` = [(frame, min_z [m]), ...] keeping frame origins above a height, and
 /// `max_step` [rad] bounding each joint's move between waypoints (velocity limit × spacing); both
-/// are quadratic penalties (weights `clearance_weight`, `step_weight`).
+/// are quadratic penalties (weights `clearance_weight`, `step_weight`). `method` is "newton"
+/// (projected Newton on the block-tridiagonal Hessian, the default) or "lbfgs" (the earlier
+/// projected L-BFGS; `memory` applies to it only).
 #[pyclass(name = "TrajectoryOptimizer", module = "phri._phri")]
 pub struct PyTrajectoryOptimizer {
     pub(crate) optimizer: TrajectoryOptimizer,
@@ -65,7 +67,7 @@ impl PyTrajectoryOptimizer {
     #[pyo3(signature = (
         features, waypoints = 31, *, clearance = None, clearance_weight = 1e3, max_iterations = 500,
         max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-10, memory = 20, smoothing = 0.05,
-        max_step = None, step_weight = 1e3
+        max_step = None, step_weight = 1e3, method = "newton"
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -81,6 +83,7 @@ impl PyTrajectoryOptimizer {
         smoothing: f64,
         max_step: Option<ArrayIn<'_>>,
         step_weight: f64,
+        method: &str,
     ) -> PyResult<Self> {
         let set = features.set.clone();
         let model = set.model().clone();
@@ -98,6 +101,13 @@ impl PyTrajectoryOptimizer {
             Some(a) => vector("max_step", a, model.nq())?.into_owned(),
             None => Vec::new(),
         };
+        let method = match method {
+            "newton" => TrajoptMethod::Newton,
+            "lbfgs" => TrajoptMethod::Lbfgs,
+            other => {
+                return Err(error(Kind::InvalidParameter, format!("method must be 'newton' or 'lbfgs', got {other:?}")));
+            }
+        };
         let params = TrajoptParams {
             max_iterations,
             max_time,
@@ -108,6 +118,7 @@ impl PyTrajectoryOptimizer {
             clearance,
             max_step,
             step_weight,
+            method,
         };
         let optimizer = TrajectoryOptimizer::new(&set, waypoints, params).py_err()?;
         Ok(PyTrajectoryOptimizer { optimizer, features: set })
@@ -117,6 +128,33 @@ impl PyTrajectoryOptimizer {
     #[getter]
     fn waypoints(&self) -> usize {
         self.optimizer.waypoints()
+    }
+
+    /// The algorithm: "newton" or "lbfgs".
+    #[getter]
+    fn method(&self) -> &'static str {
+        match self.optimizer.params().method {
+            TrajoptMethod::Newton => "newton",
+            TrajoptMethod::Lbfgs => "lbfgs",
+        }
+    }
+
+    /// The cost `solve` minimises at `xi` (N, n) for `weights`: w·Φ(ξ) with the kinked features
+    /// Huber-smoothed by `smoothing`, plus the clearance and max_step penalties. Returns (cost,
+    /// penalty, gradient (N, n)); the rows of the start and goal are included in the gradient.
+    fn objective<'py>(
+        &mut self,
+        py: Python<'py>,
+        xi: ArrayIn<'py>,
+        weights: ArrayIn<'py>,
+    ) -> PyResult<(f64, f64, Bound<'py, PyArray2<f64>>)> {
+        let n = self.features.model().nq();
+        let m = self.optimizer.waypoints();
+        let weights = vector("weights", &weights, self.features.len())?.into_owned();
+        let xi = matrix("xi", &xi, Some(m), n)?.0.into_owned();
+        let mut grad = vec![0.0; m * n];
+        let (cost, penalty) = self.optimizer.objective(&mut self.features, &weights, &xi, &mut grad).py_err()?;
+        Ok((cost, penalty, PyArray1::from_vec(py, grad).reshape([m, n])?))
     }
 
     /// Plans from `start` to `goal` [rad] for cost weights `weights` (one per feature), warm-started
@@ -146,6 +184,11 @@ impl PyTrajectoryOptimizer {
     }
 
     fn __repr__(&self) -> String {
-        format!("TrajectoryOptimizer(waypoints={}, features={:?})", self.optimizer.waypoints(), self.features.names())
+        format!(
+            "TrajectoryOptimizer(waypoints={}, features={:?}, method={:?})",
+            self.optimizer.waypoints(),
+            self.features.names(),
+            self.method()
+        )
     }
 }

@@ -1,0 +1,207 @@
+//! Trajectory optimisation (eq. 4) and the online loop of Algorithm 1 on the study's four tasks, with
+//! the study's planner (python/phri/sim/episode.py `Planner`: features ["efficiency", task], tool
+//! point and link_7 clearance, max_step from the velocity limits; see `phri_benches::study_planner`).
+//!
+//! Targets (issue 4), median and p99:
+//! - warm replan after one correction, N = 31: ≤ 1 ms — from the converged plan for task weight 0,
+//!   replan for the weight one update step later (0 → 0.3 × the true weight), warm-started;
+//! - `Learner::observe` with an interaction (deform + update + warm replan), N = 31: ≤ 1 ms;
+//! - cold replan from the straight line for the true weights, N = 31: ≤ 5 ms;
+//! - the same for N = 100: ≤ 4 × the N = 31 time.
+//!
+//! Criterion gives medians (of batch averages). A single repeated problem has no tail apart from
+//! the machine, so after the criterion groups this binary times individual calls with `Instant` over
+//! *varied* problems and prints median, p99 and max per case: cold solves repeated per task and N;
+//! warm replans from the converged plans for task weights {0, 0.2, 0.5} × true to that weight plus
+//! {0.1, 0.3} × true; and every observe of 1 s pushes (10 samples at 10 Hz, each an update and a
+//! replan) starting at t = 2, 4, 6, 8 s on fresh learners.
+//!
+//! `cargo bench -p phri_benches --bench trajopt`; under `cargo test --benches` each criterion
+//! benchmark runs once and the timing pass runs one repetition.
+
+use std::hint::black_box;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use criterion::{criterion_group, BatchSize, BenchmarkId, Criterion, Throughput};
+use phri_benches::{corrective_push, jaco2, study_learner, study_planner, study_tasks, StudyTask};
+use phri_core::features::FeatureSet;
+use phri_core::trajopt::{TrajectoryOptimizer, TrajoptInfo};
+use phri_core::RobotModel;
+
+const NQ: usize = 7;
+/// Task weight after one update step from 0, as a fraction of the true weight (table: 0 → 0.3).
+const ONE_STEP: f64 = 0.3;
+
+fn solve(
+    fs: &mut FeatureSet,
+    opt: &mut TrajectoryOptimizer,
+    task: &StudyTask,
+    w: f64,
+    init: Option<&[f64]>,
+    out: &mut [f64],
+) -> TrajoptInfo {
+    opt.solve(fs, &[1.0, w], &task.start, &task.goal, init, out).expect("valid problem")
+}
+
+fn cold(c: &mut Criterion) {
+    let model = Arc::new(jaco2());
+    let mut group = c.benchmark_group("trajopt_cold");
+    group.sample_size(20).measurement_time(Duration::from_secs(4)).warm_up_time(Duration::from_millis(500));
+    for n in [31, 100] {
+        group.throughput(Throughput::Elements(n as u64));
+        for task in study_tasks() {
+            let (mut fs, mut opt) = study_planner(&model, &task, n);
+            let mut plan = vec![0.0; n * NQ];
+            let info = solve(&mut fs, &mut opt, &task, task.true_weight, None, &mut plan);
+            eprintln!("cold {:>6} N={n:<3} {info:?}", task.name);
+            group.bench_function(BenchmarkId::new(task.name, n), |b| {
+                b.iter(|| solve(&mut fs, &mut opt, &task, black_box(task.true_weight), None, &mut plan))
+            });
+        }
+    }
+    group.finish();
+}
+
+fn warm(c: &mut Criterion) {
+    let model = Arc::new(jaco2());
+    let n = 31;
+    let mut group = c.benchmark_group("trajopt_warm_one_step");
+    group.throughput(Throughput::Elements(n as u64));
+    for task in study_tasks() {
+        let (mut fs, mut opt) = study_planner(&model, &task, n);
+        let mut converged = vec![0.0; n * NQ];
+        solve(&mut fs, &mut opt, &task, 0.0, None, &mut converged);
+        let mut plan = vec![0.0; n * NQ];
+        let w = ONE_STEP * task.true_weight;
+        let info = solve(&mut fs, &mut opt, &task, w, Some(&converged), &mut plan);
+        eprintln!("warm {:>6} 0 -> {w}: {info:?}", task.name);
+        group
+            .bench_function(task.name, |b| b.iter(|| solve(&mut fs, &mut opt, &task, black_box(w), Some(&converged), &mut plan)));
+    }
+    group.finish();
+}
+
+fn observe(c: &mut Criterion) {
+    let model = Arc::new(jaco2());
+    let mut group = c.benchmark_group("learner_observe_push");
+    group.sample_size(30).measurement_time(Duration::from_secs(5)).warm_up_time(Duration::from_millis(500));
+    for task in study_tasks() {
+        let t = 4.0;
+        // The first sample of a push on a fresh learner (task weight 0): deform, update, replan.
+        let setup = || {
+            let learner = study_learner(&model, &task, 31, 0.1);
+            let tau = corrective_push(&model, &learner, &task, t);
+            (learner, tau)
+        };
+        {
+            let (mut l, tau) = setup();
+            let obs = l.observe(t, &tau).expect("valid sample");
+            assert!(obs.replanned, "{}: the push must trigger an update and a replan", task.name);
+            let last = l.history().interactions.last().expect("recorded");
+            eprintln!("observe {:>6}: weights {:?}, replan {:?}", task.name, last.weights, last.replan);
+        }
+        group.bench_function(task.name, |b| {
+            b.iter_batched(setup, |(mut l, tau)| l.observe(black_box(t), &tau).expect("valid sample"), BatchSize::PerIteration)
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, cold, warm, observe);
+
+/// (median, p99, max) of durations, in milliseconds.
+fn summary(samples: &mut [Duration]) -> (f64, f64, f64) {
+    samples.sort_unstable();
+    let q = |p: f64| samples[((samples.len() - 1) as f64 * p).round() as usize].as_secs_f64() * 1e3;
+    (q(0.5), q(0.99), q(1.0))
+}
+
+fn row(label: &str, samples: &mut [Duration], extra: &str) {
+    let (median, p99, max) = summary(samples);
+    println!("  {label:<26} {:>6} {median:>9.3} {p99:>9.3} {max:>9.3}  {extra}", samples.len());
+}
+
+/// Individual calls over varied problems: median, p99 and max per case.
+fn tails(reps: usize) {
+    let model: Arc<RobotModel> = Arc::new(jaco2());
+    println!();
+    println!("individual calls with Instant over varied problems [ms] (the max also measures the machine)");
+    println!("  {:<26} {:>6} {:>9} {:>9} {:>9}", "case", "calls", "median", "p99", "max");
+    let mut cold31 = Vec::new();
+    for n in [31, 100] {
+        for task in study_tasks() {
+            let (mut fs, mut opt) = study_planner(&model, &task, n);
+            let mut plan = vec![0.0; n * NQ];
+            let mut samples = Vec::new();
+            let mut info = None;
+            for _ in 0..reps.max(1) * 5 {
+                let t0 = Instant::now();
+                info = Some(solve(&mut fs, &mut opt, &task, task.true_weight, None, &mut plan));
+                samples.push(t0.elapsed());
+            }
+            if n == 31 {
+                cold31.extend_from_slice(&samples);
+            }
+            let info = info.expect("solved");
+            let extra = format!("{} iterations, {} evaluations", info.iterations, info.evaluations);
+            row(&format!("cold {} N={n}", task.name), &mut samples, &extra);
+        }
+    }
+    row("cold all tasks N=31", &mut cold31, "");
+    let n = 31;
+    let mut warm_all = Vec::new();
+    for task in study_tasks() {
+        let (mut fs, mut opt) = study_planner(&model, &task, n);
+        let mut samples = Vec::new();
+        let (mut iterations, mut worst) = (0, 0);
+        for from in [0.0, 0.2, 0.5] {
+            let w0 = from * task.true_weight;
+            let mut converged = vec![0.0; n * NQ];
+            solve(&mut fs, &mut opt, &task, w0, None, &mut converged);
+            for step in [0.1, ONE_STEP] {
+                let w = w0 + step * task.true_weight;
+                let mut plan = vec![0.0; n * NQ];
+                for _ in 0..reps.max(1) * 10 {
+                    let t0 = Instant::now();
+                    let info = solve(&mut fs, &mut opt, &task, w, Some(&converged), &mut plan);
+                    samples.push(t0.elapsed());
+                    iterations += info.iterations;
+                    worst = worst.max(info.iterations);
+                }
+            }
+        }
+        let extra = format!("mean {:.1} iterations, worst {worst}", iterations as f64 / samples.len() as f64);
+        row(&format!("warm {}", task.name), &mut samples, &extra);
+        warm_all.extend_from_slice(&samples);
+    }
+    row("warm all tasks", &mut warm_all, "");
+    let mut observe_all = Vec::new();
+    for task in study_tasks() {
+        let mut samples = Vec::new();
+        let mut replans = 0;
+        for _ in 0..reps.max(1) {
+            for t0 in [2.0, 4.0, 6.0, 8.0] {
+                let mut learner = study_learner(&model, &task, 31, 0.1);
+                for k in 0..10 {
+                    let t = t0 + 0.1 * k as f64;
+                    let tau = corrective_push(&model, &learner, &task, t);
+                    let began = Instant::now();
+                    let obs = learner.observe(t, &tau).expect("valid sample");
+                    samples.push(began.elapsed());
+                    replans += usize::from(obs.replanned);
+                }
+            }
+        }
+        row(&format!("observe {}", task.name), &mut samples, &format!("{replans} replans"));
+        observe_all.extend_from_slice(&samples);
+    }
+    row("observe all tasks", &mut observe_all, "");
+}
+
+fn main() {
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+    let benchmarking = std::env::args().any(|a| a == "--bench");
+    tails(if benchmarking { 3 } else { 0 });
+}

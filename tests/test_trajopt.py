@@ -1,0 +1,241 @@
+"""phri.TrajectoryOptimizer on the study's four tasks: plans that do the task and keep the constraints,
+no worse than scipy's L-BFGS-B on the same objective, determinism, warm starts, typed errors, and the
+GIL released while it runs.
+
+The objective. `benches/trajopt_peers.py` defines `ReferenceObjective`, an independent numpy
+implementation of the cost phri minimises — w·Φ(ξ) with the kinks Huber-smoothed (δ = 0.05), plus the
+clearance penalty of the tool point and link_7 and the max_step penalty — built only from
+phri.Robot.frame_pose/jacobian. The first tests check that it equals `TrajectoryOptimizer.objective`
+(cost and gradient) and, with δ = 0 and no penalties, `Features.weighted_cost`. The comparison with
+scipy then runs L-BFGS-B to convergence on that numpy objective from the same straight line, with the
+joint limits as bounds, and compares the final costs of the same function.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import phri
+from phri import exceptions as ex
+
+TASKS = ("human", "coffee", "table", "laptop")
+#: Violation of the clearance allowed by the quadratic penalty (phri_core::trajopt docs) [m].
+CLEARANCE_TOL = 1e-3
+
+
+def _load_peers():
+    path = Path(__file__).resolve().parents[1] / "benches" / "trajopt_peers.py"
+    spec = importlib.util.spec_from_file_location("trajopt_peers", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while it loads
+    spec.loader.exec_module(module)
+    return module
+
+
+peers = _load_peers()
+
+
+@pytest.fixture(scope="module")
+def robot() -> phri.Robot:
+    return phri.Robot.jaco2()
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """Per task: (problem, optimiser, plan for the true weights, its info, plan for task weight 0)."""
+    out = {}
+    for name in TASKS:
+        problem = peers.study_problem(name)
+        opt = peers.phri_optimizer(problem)
+        plan, info = opt.solve(problem.weights, problem.start, problem.goal)
+        zero = problem.weights.copy()
+        zero[1:] = 0.0
+        plan0, info0 = opt.solve(zero, problem.start, problem.goal)
+        out[name] = (problem, opt, plan, info, plan0, info0)
+    return out
+
+
+def _trajectory(problem, rng: np.random.Generator, scale: float = 0.05) -> np.ndarray:
+    xi = peers.straight_line(problem) + scale * rng.standard_normal((problem.waypoints, 7))
+    xi[0], xi[-1] = problem.start, problem.goal
+    return xi
+
+
+@pytest.mark.parametrize("name", TASKS)
+def test_the_reference_objective_is_the_one_phri_minimises(name, solved) -> None:
+    problem, opt, plan, *_ = solved[name]
+    ref = peers.ReferenceObjective(problem)
+    rng = np.random.default_rng(4)
+    for xi in (peers.straight_line(problem), plan, _trajectory(problem, rng), _trajectory(problem, rng, 0.3)):
+        cost, penalty, grad = opt.objective(xi, problem.weights)
+        r_cost, r_penalty, r_grad = ref.full(xi)
+        assert abs(cost - r_cost) <= 1e-9 * max(1.0, abs(cost))
+        assert abs(penalty - r_penalty) <= 1e-9 * max(1.0, abs(penalty))
+        np.testing.assert_allclose(grad, r_grad, rtol=1e-9, atol=1e-9)
+
+
+def test_without_smoothing_and_penalties_the_objective_is_features_weighted_cost(robot) -> None:
+    names = ["efficiency", "table", "coffee", "laptop", "human"]
+    features = phri.Features(robot, names)
+    opt = phri.TrajectoryOptimizer(features, 31, smoothing=0.0)
+    problem = peers.study_problem("laptop")
+    rng = np.random.default_rng(9)
+    w = np.array([1.0, 0.5, 2.0, 10.0, 10.0])
+    for _ in range(3):
+        xi = _trajectory(problem, rng, 0.2)
+        cost, penalty, grad = opt.objective(xi, w)
+        f_cost, f_grad = features.weighted_cost(xi, w)
+        assert penalty == 0.0
+        assert abs(cost - f_cost) <= 1e-12 * max(1.0, abs(cost))
+        np.testing.assert_allclose(grad, f_grad, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", TASKS)
+def test_plans_do_the_task_and_keep_start_goal_limits_and_clearance(name, solved, robot) -> None:
+    problem, opt, plan, info, plan0, info0 = solved[name]
+    k = problem.names.index(name)
+    phi = opt_features(problem).phi(plan)
+    phi0 = opt_features(problem).phi(plan0)
+    assert info.converged and info0.converged, (info, info0)
+    assert phi[k] < phi0[k] - 1e-3, f"{name}: the task feature did not drop: {phi[k]} vs {phi0[k]}"
+    np.testing.assert_array_equal(plan[0], problem.start)
+    np.testing.assert_array_equal(plan[-1], problem.goal)
+    lo, hi = robot.lower_limits, robot.upper_limits
+    assert np.all(plan >= lo) and np.all(plan <= hi)
+    for frame, min_z in problem.clearance:
+        z = robot.frame_pose(frame, plan)[:, 2, 3]
+        assert z.min() >= min_z - CLEARANCE_TOL, (
+            f"{name}: {frame} {min_z - z.min():.2e} m below its clearance"
+        )
+    assert info.max_violation < CLEARANCE_TOL
+    assert np.all(np.abs(np.diff(plan, axis=0)) <= problem.max_step + 1e-2)
+
+
+def opt_features(problem) -> phri.Features:
+    return phri.Features(phri.Robot.jaco2(), list(problem.names))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", TASKS)
+def test_phri_ends_no_higher_than_scipy_lbfgsb_on_the_same_objective(name, solved) -> None:
+    scipy_optimize = pytest.importorskip("scipy.optimize")
+    problem, opt, plan, info, *_ = solved[name]
+    ref = peers.ReferenceObjective(problem)
+    x0 = peers.straight_line(problem)[1:-1].ravel()
+    res = scipy_optimize.minimize(
+        ref.interior, x0, jac=True, method="L-BFGS-B", bounds=ref.bounds(),
+        options={"maxiter": 100_000, "maxfun": 1_000_000, "ftol": 1e-13, "gtol": 1e-9, "maxcor": 20},
+    )  # fmt: skip
+    scipy_plan = np.vstack([problem.start, res.x.reshape(-1, 7), problem.goal])
+    scipy_cost = ref.full(scipy_plan)[0]
+    phri_cost = ref.full(plan)[0]  # the same function evaluates both plans
+    assert abs(phri_cost - info.cost) <= 1e-9 * max(1.0, info.cost)
+    assert phri_cost <= scipy_cost + 1e-7 * max(1.0, abs(scipy_cost)), (
+        f"{name}: phri {phri_cost:.10f} > scipy {scipy_cost:.10f} ({res.message}, {res.nfev} evaluations)"
+    )
+
+
+@pytest.mark.parametrize("name", TASKS)
+def test_the_l_bfgs_method_reaches_the_same_plan_cost(name, solved) -> None:
+    problem, _, _, info, *_ = solved[name]
+    lbfgs = peers.phri_optimizer(problem, method="lbfgs", max_iterations=5000)
+    assert lbfgs.method == "lbfgs"
+    _, linfo = lbfgs.solve(problem.weights, problem.start, problem.goal)
+    assert info.cost <= linfo.cost + 1e-6, (info, linfo)
+    assert linfo.cost <= info.cost + 1e-3, (info, linfo)
+
+
+def test_solves_are_deterministic(solved) -> None:
+    problem, opt, plan, info, *_ = solved["laptop"]
+    again, info2 = opt.solve(problem.weights, problem.start, problem.goal)
+    np.testing.assert_array_equal(plan, again)
+    assert (info.iterations, info.evaluations, info.cost) == (info2.iterations, info2.evaluations, info2.cost)
+    fresh = peers.phri_optimizer(problem)
+    np.testing.assert_array_equal(plan, fresh.solve(problem.weights, problem.start, problem.goal)[0])
+
+
+@pytest.mark.parametrize("name", TASKS)
+def test_warm_starts(name, solved) -> None:
+    problem, opt, plan, info, plan0, _ = solved[name]
+    # From its own solution: nothing left to do.
+    same, again = opt.solve(problem.weights, problem.start, problem.goal, init=plan)
+    assert again.converged and again.iterations <= 2, again
+    assert again.cost <= info.cost + 1e-12
+    # After one update step of the task weight (0 → 0.3 × true): converges, no worse than cold.
+    w = problem.weights.copy()
+    w[1:] *= 0.3
+    warm, winfo = opt.solve(w, problem.start, problem.goal, init=plan0)
+    cold, cinfo = opt.solve(w, problem.start, problem.goal)
+    assert winfo.converged, winfo
+    assert winfo.cost <= cinfo.cost + 1e-6, (winfo, cinfo)
+    np.testing.assert_array_equal(warm[0], problem.start)
+
+
+def test_bad_input_is_a_typed_error(robot) -> None:
+    problem = peers.study_problem("table")
+    opt = peers.phri_optimizer(problem)
+    w, a, b = problem.weights, problem.start, problem.goal
+    with pytest.raises(ex.ShapeError, match="weights"):
+        opt.solve([1.0], a, b)
+    with pytest.raises(ex.ShapeError, match="start"):
+        opt.solve(w, a[:6], b)
+    with pytest.raises(ex.ShapeError, match="init"):
+        opt.solve(w, a, b, init=np.zeros((30, 7)))
+    with pytest.raises(ex.NonFiniteError):
+        opt.solve([1.0, np.nan], a, b)
+    with pytest.raises(ex.NonFiniteError):
+        opt.solve(w, a, b, init=np.full((31, 7), np.nan))
+    with pytest.raises(ex.InvalidParameterError, match="outside the limits"):
+        opt.solve(w, np.zeros(7), b)
+    with pytest.raises(ex.ShapeError, match="xi"):
+        opt.objective(np.zeros((5, 7)), w)
+    features = phri.Features(robot, ["efficiency", "table"])
+    with pytest.raises(ex.InvalidParameterError, match="method"):
+        phri.TrajectoryOptimizer(features, 31, method="bfgs")
+    with pytest.raises(ex.InvalidParameterError, match="waypoints"):
+        phri.TrajectoryOptimizer(features, 2)
+    with pytest.raises(ex.InvalidParameterError, match="max_step"):
+        phri.TrajectoryOptimizer(features, 31, max_step=-np.ones(7))
+    with pytest.raises(ex.UnknownNameError):
+        phri.TrajectoryOptimizer(features, 31, clearance=[("no_such_frame", 0.0)])
+
+
+def test_solve_releases_the_gil() -> None:
+    """A pure-Python thread keeps counting while a long solve runs (it could not if the GIL were held)."""
+    problem = peers.study_problem("laptop", waypoints=400)
+    opt = peers.phri_optimizer(
+        problem, method="lbfgs", max_iterations=100_000, gradient_tolerance=0.0, relative_tolerance=0.0,
+        max_time=0.6,
+    )  # fmt: skip
+    count = [0]
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            count[0] += 1
+
+    thread = threading.Thread(target=spin)
+    thread.start()
+    try:
+        time.sleep(0.05)
+        c0, t0 = count[0], time.perf_counter()
+        time.sleep(0.2)  # the thread's rate with the main thread idle
+        rate = (count[0] - c0) / (time.perf_counter() - t0)
+        c0, t0 = count[0], time.perf_counter()
+        opt.solve(problem.weights, problem.start, problem.goal)
+        elapsed = time.perf_counter() - t0
+        during = count[0] - c0
+    finally:
+        stop.set()
+        thread.join()
+    assert elapsed > 0.3, f"the solve was too short to tell ({elapsed:.3f} s)"
+    # Held, the thread would get at most a few switch intervals (5 ms each) of the solve.
+    assert during > 0.2 * rate * elapsed, f"{during} counts in {elapsed:.2f} s at {rate:.0f}/s alone"

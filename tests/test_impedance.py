@@ -209,7 +209,8 @@ def test_properties(jaco2, gen):
     np.testing.assert_array_equal(c.damping, B_DEFAULT)
     np.testing.assert_array_equal(c.effort_limits, jaco2.effort_limits)
     assert c.inertia is None and c.gravity_compensation is True and c.saturated == 0
-    k = gen.normal(size=(7, 7))
+    a = gen.normal(size=(7, 7))
+    k = a @ a.T  # full gains are symmetric positive semidefinite
     full = phri.ImpedanceController(jaco2, stiffness=k, inertia=np.full(7, 0.2), gravity_compensation=False)
     np.testing.assert_array_equal(full.stiffness, k)  # row-major round trip
     np.testing.assert_array_equal(full.inertia, np.full(7, 0.2))
@@ -264,8 +265,33 @@ def test_the_full_law_needs_an_inertia(jaco2):
         ({"stiffness": -np.ones(7)}, ex.InvalidParameterError, "stiffness [0] must be >= 0, got -1"),
         ({"damping": np.full(7, np.nan)}, ex.NonFiniteError, "damping must be finite"),
         ({"stiffness": np.full((7, 7), np.inf)}, ex.NonFiniteError, "stiffness must be finite"),
-        ({"inertia": np.zeros(7)}, ex.InvalidParameterError, "inertia [0] must be > 0 kg·m², got 0"),
-        ({"inertia": -np.eye(7)}, ex.InvalidParameterError, "inertia must be symmetric positive definite"),
+        ({"inertia": np.zeros(7)}, ex.InvalidParameterError, "inertia [0] must be > 0 kg·m²"),
+        (
+            {"inertia": -np.eye(7)},
+            ex.InvalidParameterError,
+            "inertia must be positive semidefinite, got an eigenvalue",
+        ),
+        (
+            {"inertia": np.diag([0.0, 1, 1, 1, 1, 1, 1])},
+            ex.InvalidParameterError,
+            "inertia must be symmetric positive definite",
+        ),
+        (
+            {"inertia": np.full(7, 1e-320)},
+            ex.InvalidParameterError,
+            "inertia [0] must be > 0 kg·m² (and not so small that its inverse overflows)",
+        ),
+        (
+            {"inertia": np.eye(7) + 5 * np.eye(7, k=1)},
+            ex.InvalidParameterError,
+            "inertia must be a symmetric matrix",
+        ),
+        ({"damping": -np.eye(7)}, ex.InvalidParameterError, "damping must be positive semidefinite"),
+        (
+            {"stiffness": np.eye(7) - 3 * np.eye(7, k=1) - 3 * np.eye(7, k=-1)},
+            ex.InvalidParameterError,
+            "stiffness must be positive semidefinite",
+        ),
     ],
 )
 def test_bad_gains_are_typed_errors(jaco2, kwargs, error, pattern):
@@ -281,3 +307,19 @@ def test_default_gains_need_a_seven_joint_robot():
         phri.ImpedanceController(arm5)
     c = phri.ImpedanceController(arm5, stiffness=np.ones(5), damping=np.ones(5))
     assert c.torque(np.ones(5), np.zeros(5), np.ones(5), np.zeros(5)).shape == (5,)
+
+
+@pytest.mark.parametrize("method", ["torque", "torque_implicit", "torque_full"])
+def test_finite_inputs_whose_torque_overflows_are_an_error_not_nan(jaco2, method):
+    c = phri.ImpedanceController(jaco2, stiffness=np.full(7, 1e308), inertia=np.ones(7))
+    q = np.full(7, np.pi)
+    far = q + 1e300
+    calls = {
+        "torque": lambda: c.torque(q, np.zeros(7), far, np.zeros(7)),
+        "torque_implicit": lambda: c.torque_implicit(q, np.zeros(7), far, np.zeros(7), 1e-3),
+        "torque_full": lambda: c.torque_full(q, np.zeros(7), far, np.zeros(7), np.zeros(7), np.zeros(7)),
+    }
+    with pytest.raises(ex.InvalidParameterError, match=r"so large that the torque of joint \d overflows"):
+        calls[method]()
+    # The same controller is still fine on sane inputs.
+    assert np.all(np.isfinite(c.torque(q, np.zeros(7), q, np.zeros(7))))

@@ -552,11 +552,79 @@ def test_malformed_urdf_raises_urdf_error(text: str, tmp_path: Path):
         phri.Robot.from_urdf(path)
 
 
+def _two_link_urdf(
+    mass="1", inertia='ixx="0.01" iyy="0.01" izz="0.01"', origin="0 0 0.1", velocity="1"
+) -> str:
+    return (
+        f'<robot name="r"><link name="a"/><link name="b"><inertial><mass value="{mass}"/>'
+        f'<inertia {inertia} ixy="0" ixz="0" iyz="0"/></inertial></link>'
+        f'<joint name="j" type="revolute"><parent link="a"/><child link="b"/><origin xyz="{origin}"/>'
+        f'<axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="{velocity}"/></joint></robot>'
+    )
+
+
+def test_the_two_link_fixture_is_valid() -> None:
+    assert phri.Robot.from_urdf_string(_two_link_urdf()).nq == 1
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (_two_link_urdf(mass="nan"), r"link 'b' has a mass that is not a finite mass >= 0 kg \(NaN\)"),
+        (_two_link_urdf(mass="-1"), r"link 'b' has a mass that is not a finite mass"),
+        (
+            _two_link_urdf(inertia='ixx="nan" iyy="0.01" izz="0.01"'),
+            r"link 'b' has an inertia that must be finite",
+        ),
+        (
+            _two_link_urdf(inertia='ixx="-1" iyy="0.01" izz="10"'),
+            r"link 'b' has an inertia that is not a physical inertia tensor",
+        ),
+        (_two_link_urdf(origin="nan 0 0"), r"joint 'j' has an origin that is not finite"),
+        (_two_link_urdf(velocity="-1"), r"joint 'j' has a velocity limit that is not finite and >= 0"),
+        (
+            # A cycle beside the root: r is the one root, a and b are each other's parent.
+            '<robot name="r"><link name="r"/><link name="a"/><link name="b"/>'
+            '<joint name="ab" type="fixed"><parent link="a"/><child link="b"/></joint>'
+            '<joint name="ba" type="fixed"><parent link="b"/><child link="a"/></joint></robot>',
+            r"the joints form a cycle through link",
+        ),
+        (
+            '<robot name="r"><link name="r"/><link name="a"/>'
+            '<joint name="aa" type="continuous"><parent link="a"/><child link="a"/><axis xyz="0 0 1"/></joint></robot>',
+            r"the joints form a cycle through link 'a'",
+        ),
+        ('<robot name="r"><link name="a"/><link name="a"/></robot>', r"link 'a' is defined twice"),
+        (
+            '<robot name="r"><link name="a"/><link name="b"/><link name="c"/>'
+            '<joint name="j" type="fixed"><parent link="a"/><child link="b"/></joint>'
+            '<joint name="j" type="fixed"><parent link="a"/><child link="c"/></joint></robot>',
+            r"joint 'j' is defined twice",
+        ),
+    ],
+    ids=[
+        "nan-mass",
+        "negative-mass",
+        "nan-inertia",
+        "unphysical-inertia",
+        "nan-origin",
+        "negative-velocity",
+        "cycle",
+        "self-loop",
+        "duplicate-link",
+        "duplicate-joint",
+    ],
+)
+def test_urdf_numbers_and_structure_are_checked_when_read(text: str, message: str) -> None:
+    with pytest.raises(ex.UrdfError, match=rf"^urdf: {message}"):
+        phri.Robot.from_urdf_string(text)
+
+
 def test_tip_not_below_base_raises(robot: phri.Robot):
     text = jaco2_urdf_path().read_text()
     with pytest.raises(ex.InvalidParameterError, match=r"^tip link 'j2s7s300_link_2' is not below the base"):
         phri.Robot.from_urdf_string(text, base=PREFIX + "link_4", tip=PREFIX + "link_2")
-    with pytest.raises(ex.InvalidParameterError, match=r"^tip there is no movable joint between"):
+    with pytest.raises(ex.InvalidParameterError, match=r"^tip must lie below a movable joint of base"):
         phri.Robot.from_urdf_string(text, base=LINK_7, tip=END_EFFECTOR)
 
 
@@ -633,7 +701,7 @@ def test_check_limits(robot: phri.Robot, draw_q):
     q = np.full(NQ, np.pi)
     q[3] = 0.1
     with pytest.raises(
-        ex.InvalidParameterError, match=r"^q \[3\] = 0.1 is outside the limits .* 'j2s7s300_joint_4'"
+        ex.InvalidParameterError, match=r"^q has \[3\] = 0.1, outside the limits .* 'j2s7s300_joint_4'"
     ):
         robot.check_limits(q)
     # continuous joints have no limits

@@ -19,7 +19,7 @@ impl RobotModel {
         check_len("tau", tau, n)?;
         self.forward_kinematics_unchecked(q, data);
         self.rnea_after_fk(qd, Some(qdd), true, data, tau);
-        check_result(tau)
+        check_result("qd, qdd", tau)
     }
 
     /// C(q, q̇)q̇ + g(q) [N·m]: the efforts that hold the arm at zero acceleration.
@@ -30,7 +30,7 @@ impl RobotModel {
         check_len("tau", tau, n)?;
         self.forward_kinematics_unchecked(q, data);
         self.rnea_after_fk(qd, None, true, data, tau);
-        check_result(tau)
+        check_result("qd", tau)
     }
 
     /// Coriolis and centrifugal efforts C(q, q̇)q̇ [N·m], without gravity.
@@ -41,7 +41,7 @@ impl RobotModel {
         check_len("tau", tau, n)?;
         self.forward_kinematics_unchecked(q, data);
         self.rnea_after_fk(qd, None, false, data, tau);
-        check_result(tau)
+        check_result("qd", tau)
     }
 
     /// Gravity efforts g(q) [N·m]: what the motors must apply to hold the arm still.
@@ -50,7 +50,7 @@ impl RobotModel {
         check_len("tau", tau, self.nq())?;
         self.forward_kinematics_unchecked(q, data);
         self.gravity_after_fk(data, tau);
-        Ok(())
+        check_result("the model's masses", tau)
     }
 
     /// Gravity efforts for the configuration of the last forward kinematics. O(n) through the
@@ -77,7 +77,14 @@ impl RobotModel {
     }
 
     /// Recursive Newton–Euler after forward kinematics. `qdd = None` means zero acceleration.
-    fn rnea_after_fk(&self, qd: &[f64], qdd: Option<&[f64]>, with_gravity: bool, data: &mut RobotData, tau: &mut [f64]) {
+    pub(crate) fn rnea_after_fk(
+        &self,
+        qd: &[f64],
+        qdd: Option<&[f64]>,
+        with_gravity: bool,
+        data: &mut RobotData,
+        tau: &mut [f64],
+    ) {
         let n = self.nq();
         data.omega[0] = Vector3::zeros();
         data.omega_dot[0] = Vector3::zeros();
@@ -185,12 +192,13 @@ impl RobotModel {
     }
 }
 
-/// Finite inputs so large that the products overflow (e.g. q̇ = 1e200) must not pass as a result.
-fn check_result(tau: &[f64]) -> Result<()> {
+/// Finite inputs so large that the products overflow (e.g. q̇ = 1e200) must not pass as a result;
+/// `args` names the inputs that scale the efforts.
+fn check_result(args: &str, tau: &[f64]) -> Result<()> {
     if tau.iter().all(|v| v.is_finite()) {
         Ok(())
     } else {
-        Err(PhriError::invalid("qd", "is so large that the efforts overflow (non-finite result)"))
+        Err(PhriError::invalid(args, "so large that the efforts overflow (non-finite result)"))
     }
 }
 

@@ -31,6 +31,19 @@ impl Gain {
                     return Err(PhriError::shape(arg, format!("({n}, {n})"), format!("{:?}", m.shape())));
                 }
                 check_finite(arg, m.as_slice())?;
+                // A gain matrix is symmetric positive semidefinite: the law then only stores or
+                // dissipates energy (passivity); the asymmetric part would be silently a curl.
+                let scale = m.amax().max(1e-300);
+                if (m - m.transpose()).amax() > 1e-9 * scale {
+                    return Err(PhriError::invalid(arg, "must be a symmetric matrix"));
+                }
+                let lowest = m.clone().symmetric_eigenvalues().min();
+                if lowest < -1e-12 * scale {
+                    return Err(PhriError::invalid(
+                        arg,
+                        format!("must be positive semidefinite, got an eigenvalue of {lowest:e}"),
+                    ));
+                }
             }
         }
         Ok(())
@@ -116,8 +129,11 @@ impl ImpedanceController {
                 g.check("inertia", n)?;
                 Some(match g {
                     Gain::Diagonal(d) => {
-                        if let Some((i, v)) = d.iter().enumerate().find(|(_, v)| **v <= 0.0) {
-                            return Err(PhriError::invalid("inertia", format!("[{i}] must be > 0 kg·m², got {v}")));
+                        if let Some((i, v)) = d.iter().enumerate().find(|(_, v)| !(1.0 / **v).is_finite() || **v <= 0.0) {
+                            return Err(PhriError::invalid(
+                                "inertia",
+                                format!("[{i}] must be > 0 kg·m² (and not so small that its inverse overflows), got {v}"),
+                            ));
                         }
                         Gain::Diagonal(d.iter().map(|v| 1.0 / v).collect())
                     }
@@ -174,7 +190,12 @@ impl ImpedanceController {
         Ok(())
     }
 
-    fn saturate(&self, tau: &mut [f64]) -> ControlStatus {
+    /// Clips `tau` to the effort limits. Finite inputs so large that the torque overflows are an
+    /// error naming `args` (the inputs that scale it), never a NaN passed on to the motors.
+    fn saturate(&self, args: &str, tau: &mut [f64]) -> Result<ControlStatus> {
+        if let Some(j) = tau.iter().position(|t| !t.is_finite()) {
+            return Err(PhriError::invalid(args, format!("so large that the torque of joint {j} overflows (non-finite)")));
+        }
         let mut status = ControlStatus::default();
         for (j, (t, lim)) in tau.iter_mut().zip(&self.effort_limits).enumerate() {
             if t.abs() > *lim {
@@ -182,7 +203,7 @@ impl ImpedanceController {
                 status.saturated |= 1 << j.min(63);
             }
         }
-        status
+        Ok(status)
     }
 
     /// Eq. 6 with gravity compensation: τ = g(q) + K_R(q_R − q) + B_R(q̇_R − q̇) [N·m], saturated.
@@ -200,7 +221,7 @@ impl ImpedanceController {
         for j in 0..tau.len() {
             tau[j] += self.scratch[j] + self.scratch2[j];
         }
-        Ok(self.saturate(tau))
+        self.saturate("q, qd, q_ref, qd_ref and the gains are", tau)
     }
 
     /// Eq. 6 discretised implicitly for a simulator that integrates explicitly with step `dt` [s]
@@ -258,7 +279,7 @@ impl ImpedanceController {
         for j in 0..n {
             tau[j] += self.scratch[j] + self.scratch2[j];
         }
-        Ok(self.saturate(tau))
+        self.saturate("q, qd, q_ref, qd_ref, dt and the gains are", tau)
     }
 
     /// Eq. 5 by feedback linearisation: commands the closed loop
@@ -292,11 +313,12 @@ impl ImpedanceController {
         for j in 0..n {
             self.qdd[j] = qdd_ref[j] + self.scratch[j];
         }
-        self.model.inverse_dynamics(q, qd, &self.qdd, &mut self.data, tau)?;
+        self.model.forward_kinematics_unchecked(q, &mut self.data);
+        self.model.rnea_after_fk(qd, Some(&self.qdd), true, &mut self.data, tau);
         for j in 0..n {
             tau[j] -= u_h[j];
         }
-        Ok(self.saturate(tau))
+        self.saturate("q, qd, q_ref, qd_ref, qdd_ref, u_h and the gains are", tau)
     }
 }
 

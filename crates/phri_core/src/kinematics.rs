@@ -117,7 +117,7 @@ impl RobotModel {
             if v < joint.lower || v > joint.upper {
                 return Err(PhriError::invalid(
                     arg,
-                    format!("[{j}] = {v} is outside the limits [{}, {}] of joint '{}'", joint.lower, joint.upper, joint.name),
+                    format!("has [{j}] = {v}, outside the limits [{}, {}] of joint '{}'", joint.lower, joint.upper, joint.name),
                 ));
             }
         }

@@ -135,6 +135,64 @@ fn link_inertia(link: &urdf_rs::Link) -> BodyInertia {
     BodyInertia { mass: i.mass.value, com: origin.translation.vector, inertia: r * local * r.transpose() }
 }
 
+/// Why `inertia` is not a physical inertia tensor [kg·m²], if it is not: it must be finite,
+/// symmetric, positive semidefinite, and its principal moments must obey the triangle inequality
+/// (each at most the sum of the other two).
+fn check_inertia(inertia: &Matrix3<f64>) -> std::result::Result<(), String> {
+    if inertia.iter().any(|v| !v.is_finite()) {
+        return Err("must be finite".into());
+    }
+    let scale = inertia.amax().max(1e-300);
+    if (inertia - inertia.transpose()).amax() > 1e-9 * scale {
+        return Err("must be symmetric".into());
+    }
+    let moments = inertia.symmetric_eigenvalues();
+    let tol = 1e-12 * scale;
+    let physical =
+        moments.iter().all(|m| *m >= -tol) && (0..3).all(|i| moments[i] <= moments[(i + 1) % 3] + moments[(i + 2) % 3] + tol);
+    if !physical {
+        return Err(format!("is not a physical inertia tensor (principal moments {:?} kg·m²)", moments.as_slice()));
+    }
+    Ok(())
+}
+
+/// Checks the numbers a URDF gives a link (mass, inertia, their origin) and a joint (origin, limits),
+/// so that a bad file fails when it is read rather than as NaN in a later result.
+fn check_link(link: &urdf_rs::Link) -> Result<()> {
+    let bad = |what: &str, reason: String| PhriError::Urdf {
+        arg: "urdf".into(),
+        reason: format!("link '{}' has {what} that {reason}", link.name),
+    };
+    let i = &link.inertial;
+    if !(i.mass.value.is_finite() && i.mass.value >= 0.0) {
+        return Err(bad("a mass", format!("is not a finite mass >= 0 kg ({})", i.mass.value)));
+    }
+    if i.origin.xyz.iter().chain(i.origin.rpy.iter()).any(|v| !v.is_finite()) {
+        return Err(bad("an inertial origin", "is not finite".into()));
+    }
+    let inertia = link_inertia(link).inertia;
+    check_inertia(&inertia).map_err(|reason| bad("an inertia", reason))
+}
+
+fn check_joint(j: &urdf_rs::Joint) -> Result<()> {
+    let bad = |reason: String| PhriError::Urdf { arg: "urdf".into(), reason: format!("joint '{}' {reason}", j.name) };
+    if j.origin.xyz.iter().chain(j.origin.rpy.iter()).any(|v| !v.is_finite()) {
+        return Err(bad("has an origin that is not finite".into()));
+    }
+    if !matches!(j.joint_type, urdf_rs::JointType::Fixed) {
+        let l = &j.limit;
+        for (what, v) in [("velocity", l.velocity), ("effort", l.effort)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad(format!("has a {what} limit that is not finite and >= 0 ({v})")));
+            }
+        }
+        if !matches!(j.joint_type, urdf_rs::JointType::Continuous) && (l.lower.is_nan() || l.upper.is_nan()) {
+            return Err(bad("has a NaN position limit".into()));
+        }
+    }
+    Ok(())
+}
+
 impl RobotModel {
     /// Reads a URDF file. `base` defaults to the root link; `tip` to the end of the only
     /// leaf-most chain of movable joints (required when the tree branches).
@@ -200,25 +258,7 @@ impl RobotModel {
         if com.iter().any(|v| !v.is_finite()) {
             return Err(PhriError::invalid("com", "must be finite"));
         }
-        if inertia.iter().any(|v| !v.is_finite()) {
-            return Err(PhriError::invalid("inertia", "must be finite"));
-        }
-        let scale = inertia.amax().max(1e-300);
-        if (inertia - inertia.transpose()).amax() > 1e-9 * scale {
-            return Err(PhriError::invalid("inertia", "must be symmetric"));
-        }
-        // A physical inertia tensor is positive semidefinite and its principal moments obey the
-        // triangle inequality (each at most the sum of the other two).
-        let moments = inertia.symmetric_eigenvalues();
-        let tol = 1e-12 * scale;
-        let physical =
-            moments.iter().all(|m| *m >= -tol) && (0..3).all(|i| moments[i] <= moments[(i + 1) % 3] + moments[(i + 2) % 3] + tol);
-        if !physical {
-            return Err(PhriError::invalid(
-                "inertia",
-                format!("is not a physical inertia tensor (principal moments {:?} kg·m²)", moments.as_slice()),
-            ));
-        }
+        check_inertia(&inertia).map_err(|reason| PhriError::invalid("inertia", reason))?;
         let f = &self.frames[frame.0];
         let payload = BodyInertia { mass, com, inertia }.transformed(&f.body_t_frame);
         self.bodies[f.body] = self.bodies[f.body].combine(&payload);
@@ -228,6 +268,15 @@ impl RobotModel {
 
 fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Result<RobotModel> {
     let links: HashMap<&str, &urdf_rs::Link> = robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
+    if links.len() != robot.links.len() {
+        let mut seen = std::collections::HashSet::new();
+        let twice = robot.links.iter().find(|l| !seen.insert(l.name.as_str())).map_or("", |l| l.name.as_str());
+        return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("link '{twice}' is defined twice") });
+    }
+    let mut joint_names = std::collections::HashSet::new();
+    if let Some(j) = robot.joints.iter().find(|j| !joint_names.insert(j.name.as_str())) {
+        return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("joint '{}' is defined twice", j.name) });
+    }
     let mut parent_joint: HashMap<&str, &urdf_rs::Joint> = HashMap::new();
     let mut children: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
     for j in &robot.joints {
@@ -248,6 +297,25 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
     if roots.len() != 1 {
         return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("expected one root link, found {roots:?}") });
     }
+    // One root and one parent per link make a tree only if every link reaches the root: a link
+    // whose parents never end within as many steps as there are links is on a cycle.
+    for start in links.keys() {
+        let mut link = *start;
+        for _ in 0..=links.len() {
+            match parent_joint.get(link) {
+                Some(j) => link = j.parent.link.as_str(),
+                None => break,
+            }
+        }
+        if parent_joint.contains_key(link) {
+            return Err(PhriError::Urdf {
+                arg: "urdf".into(),
+                reason: format!("the joints form a cycle through link '{link}' (a URDF must be a tree)"),
+            });
+        }
+    }
+    robot.links.iter().try_for_each(check_link)?;
+    robot.joints.iter().try_for_each(check_joint)?;
     let known = || {
         let mut names: Vec<&str> = links.keys().copied().collect();
         names.sort_unstable();
@@ -343,7 +411,7 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
         }
     }
     if joints.is_empty() {
-        return Err(PhriError::invalid("tip", format!("there is no movable joint between '{base}' and '{tip}'")));
+        return Err(PhriError::invalid("tip", format!("must lie below a movable joint of base '{base}', but '{tip}' does not")));
     }
     let frame_index = frames.iter().enumerate().map(|(i, f)| (f.name.clone(), i)).collect();
     Ok(RobotModel {

@@ -119,8 +119,9 @@ fn gain_array<'py>(py: Python<'py>, g: &Gain) -> PyResult<Bound<'py, PyArrayDyn<
 /// The impedance law τ = g(q) + K(q_R − q) + B(q̇_R − q̇) (eq. 6, `torque`) or, with a desired
 /// inertia M_R, the full law of eq. 5 by feedback linearisation (`torque_full`), saturated to the
 /// effort limits [N·m]. Gains are 1-D (diagonal, (n,)) or 2-D ((n, n)) arrays: stiffness K
-/// [N·m/rad], damping B [N·m·s/rad], inertia M_R [kg·m²]; K and B default to the JACO2 gains
-/// (100, 150, 80, 80, 30, 30, 20) and (10, 15, 8, 8, 3, 3, 2).
+/// [N·m/rad], damping B [N·m·s/rad], inertia M_R [kg·m²]; full matrices must be symmetric positive
+/// semidefinite (M_R definite). K and B default to the JACO2 gains (200, 300, 150, 150, 50, 50, 30)
+/// and (20, 30, 15, 15, 5, 5, 3).
 #[pyclass(name = "ImpedanceController", module = "phri._phri")]
 pub struct PyImpedanceController {
     controller: ImpedanceController,

@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+import dataclasses
+import importlib.resources
 import math
+import re
+import sys
 
 import numpy as np
 import pytest
 
 import phri
+from phri.config import KNOWN_FEATURES, Scene
 from phri.exceptions import ConfigError, UnknownNameError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
 
 
 def test_the_four_study_tasks_ship_with_their_numbers() -> None:
@@ -93,3 +103,240 @@ def test_unknown_task_names_list_the_known_ones() -> None:
 def test_degrees_become_radians() -> None:
     task = phri.load_task("human")
     assert math.isclose(task.start[0], math.radians(210.8))
+
+
+def _shipped_text(name: str) -> str:
+    return importlib.resources.files("phri").joinpath("tasks", f"{name}.toml").read_text()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            "step = 2.0",
+            "stpe = 2.0",
+            "unknown key 'features.table.stpe' in table [features.table]; "
+            "allowed keys: initial, true, step, lower, upper, learned; did you mean 'step'?",
+        ),
+        (
+            "duration = 15.0",
+            "duraton = 15.0",
+            "unknown key 'duraton' in the top-level table; allowed keys: name, title, angles, start, goal, "
+            "duration, waypoints, task_feature, features, scene; did you mean 'duration'?",
+        ),
+        (
+            "radius = 0.4",
+            "raduis = 0.4",
+            "unknown key 'scene.raduis' in table [scene]; allowed keys: table_height, laptop_center, "
+            "human_center, radius, samples; did you mean 'radius'?",
+        ),
+        (
+            "[features.table]",
+            "[features.tabel]",
+            "key 'features.tabel': unknown feature; known: efficiency, table, coffee, coffee_dot, laptop, "
+            "human, origin; did you mean 'table'?",
+        ),
+        ("true = 1.0\nstep", "tru = 1.0\nstep", "unknown key 'features.table.tru'"),  # not "missing 'true'"
+    ],
+)
+def test_unknown_keys_name_the_table_the_allowed_keys_and_the_closest(tmp_path, old, new, message) -> None:
+    path = _variant(tmp_path, old, new)
+    with pytest.raises(ConfigError, match=re.escape(message)) as e:
+        phri.load_task(path)
+    assert str(e.value).startswith(f"{path}: ")
+
+
+def test_an_unknown_key_with_no_close_match_lists_the_allowed_keys_only(tmp_path) -> None:
+    message = r"unknown key 'colour' in the top-level table; allowed keys: "
+    with pytest.raises(ConfigError, match=message) as e:
+        phri.load_task(_variant(tmp_path, "waypoints = 31", "waypoints = 31\ncolour = 3"))
+    assert "did you mean" not in str(e.value)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("duration = 15.0", "duration = inf", "key 'duration' must be a finite number, got inf"),
+        ("duration = 15.0", "duration = nan", "key 'duration' must be a finite number, got nan"),
+        ("true = 1.0\nstep", "true = inf\nstep", "key 'features.table.true' must be a finite number"),
+        ("step = 2.0", "step = inf", "key 'features.table.step' must be a finite number, got inf"),
+        (
+            "upper = 1.0",
+            "upper = inf",
+            "key 'features.table.upper' must be a finite number (leave it out for no upper bound), got inf",
+        ),
+        ("lower = 0.0", "lower = -inf", "key 'features.table.lower' must be a finite number, got -inf"),
+        ("table_height = -0.1016", "table_height = -inf", "key 'scene.table_height' must be a finite number"),
+        ("radius = 0.4", "radius = inf", "key 'scene.radius' must be a finite number, got inf"),
+        ("duration = 15.0", "duration = 1" + "0" * 400, "key 'duration' must be a finite number"),
+        ("start = [104.2,", "start = [1" + "0" * 400 + ",", "key 'start' must be a list of 7 finite numbers"),
+        ("[-0.7929, -0.1]", "[-0.7929, inf]", "key 'scene.laptop_center' must be a list of 2 finite numbers"),
+    ],
+)
+def test_numbers_must_be_finite(tmp_path, old, new, message) -> None:
+    path = _variant(tmp_path, old, new)
+    with pytest.raises(ConfigError, match=re.escape(message)) as e:
+        phri.load_task(path)
+    assert str(e.value).startswith(f"{path}: ")
+
+
+def test_leaving_upper_out_still_means_no_upper_bound(tmp_path) -> None:
+    task = phri.load_task(_variant(tmp_path, "upper = 1.0\n", ""))
+    assert task.features[1].upper == math.inf
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            "start = [104.2, 151.6, 183.8, 101.8,",
+            "start = [104.2, 40.0, 183.8, 101.8,",
+            "key 'start' must be within the joint limits of j2s7s300 in degrees: "
+            "start[1] = 40.0 is outside [47.000014, 313.000025] (joint 'j2s7s300_joint_2')",
+        ),
+        (
+            "goal = [210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]",
+            "goal = [210.8, 101.6, 192.0, 335, 222.2, 300, 322.0]",
+            "key 'goal' must be within the joint limits of j2s7s300 in degrees: "
+            "goal[3] = 335 is outside [30.000013, 330.000027] (joint 'j2s7s300_joint_4'); "
+            "goal[5] = 300 is outside [64.999999, 294.999983] (joint 'j2s7s300_joint_6')",
+        ),
+        (
+            'angles = "degrees"\n',
+            'angles = "radians"\n',  # the same numbers read as radians: joint 2 at 151.6 rad
+            "key 'start' must be within the joint limits of j2s7s300 in radians: "
+            "start[1] = 151.6 is outside [0.820305, 5.462881] (joint 'j2s7s300_joint_2')",
+        ),
+    ],
+)
+def test_start_and_goal_outside_the_joint_limits_fail_at_load_in_the_files_unit(
+    tmp_path, robot, old, new, message
+) -> None:
+    path = _variant(tmp_path, old, new)
+    with pytest.raises(ConfigError, match=re.escape(message)) as e:
+        phri.load_task(path)
+    assert str(e.value).startswith(f"{path}: ")
+    # What the planner would have rejected later, with no file, key or degrees in its message.
+    key = message.split("'")[1]
+    text = path.read_text()
+    values = tomllib.loads(text)[key]
+    scale = math.pi / 180 if 'angles = "degrees"' in text else 1.0
+    with pytest.raises(ValueError, match="outside the limits"):
+        robot.check_limits(np.asarray(values, dtype=float) * scale)
+
+
+def test_poses_at_the_limits_and_on_continuous_joints_load(tmp_path, robot) -> None:
+    lo, hi = robot.lower_limits, robot.upper_limits
+    # Radians, exactly at the limits of joints 2, 4 and 6; continuous joints 1, 3, 5, 7 take any angle.
+    start = [-720.0, float(lo[1]), 1e6, float(hi[3]), 0.0, float(lo[5]), 360.0]
+    goal = [0.0, float(hi[1]), 0.0, float(lo[3]), 0.0, float(hi[5]), 0.0]
+    text = _shipped_text("table").replace('angles = "degrees"', 'angles = "radians"')
+    lines = [line for line in text.splitlines() if not line.startswith(("start =", "goal ="))]
+    path = tmp_path / "limits.toml"
+    path.write_text(f"start = {start}\ngoal = {goal}\n" + "\n".join(lines))
+    task = phri.load_task(path)
+    np.testing.assert_array_equal(task.start, start)
+    np.testing.assert_array_equal(task.goal, goal)
+    robot.check_limits(task.start)
+    robot.check_limits(task.goal)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            "true = 1.0\nstep",
+            "true = 2.0\nstep",
+            "key 'features.table.true' must be within [lower, upper] = [0.0, 1.0] of feature 'table', "
+            "got 2.0",
+        ),
+        (
+            "initial = 0.0",
+            "initial = 1.5",
+            "key 'features.table.initial' must be within [lower, upper] = [0.0, 1.0] of feature 'table', "
+            "got 1.5",
+        ),
+        (
+            "initial = 0.0",
+            "initial = -0.5",
+            "key 'features.table.initial' must be within [lower, upper] = [0.0, 1.0] of feature 'table', "
+            "got -0.5",
+        ),
+        (  # a fixed weight is checked against the bounds the file gives it
+            "learned = false",
+            "learned = false\nupper = 0.5",
+            "key 'features.efficiency.initial' must be within [lower, upper] = [-inf, 0.5] of feature "
+            "'efficiency', got 1.0",
+        ),
+        (  # no bounds given: a learned weight stays in [0, inf)
+            "true = 1.0\nstep = 2.0\nlower = 0.0\nupper = 1.0",
+            "true = -1.0\nstep = 2.0",
+            "key 'features.table.true' must be within [lower, upper] = [0.0, inf] of feature 'table', "
+            "got -1.0",
+        ),
+    ],
+)
+def test_initial_and_true_weights_must_lie_within_the_bounds(tmp_path, old, new, message) -> None:
+    path = _variant(tmp_path, old, new)
+    with pytest.raises(ConfigError, match=re.escape(message)) as e:
+        phri.load_task(path)
+    assert str(e.value).startswith(f"{path}: ")
+
+
+def test_a_fixed_weight_keeps_its_initial_value_as_its_bounds(tmp_path) -> None:
+    # learned = false with no bounds: clip range [initial, initial]; its true weight is not checked.
+    task = phri.load_task(_variant(tmp_path, "initial = 1.0\ntrue = 1.0", "initial = 1.0\ntrue = 3.0"))
+    efficiency = task.features[0]
+    assert (efficiency.learned, efficiency.lower, efficiency.upper, efficiency.true) == (False, 1.0, 1.0, 3.0)
+    task = phri.load_task(_variant(tmp_path, "learned = false", "learned = false\nlower = 0.5\nupper = 2.0"))
+    assert (task.features[0].lower, task.features[0].upper) == (0.5, 2.0)
+
+
+def test_a_file_that_is_not_utf8_names_the_file_and_the_line(tmp_path) -> None:
+    path = tmp_path / "latin1.toml"
+    text = _shipped_text("table").replace('title = "Task 2', 'title = "Tâche 2')
+    path.write_bytes(text.encode().replace("Tâche".encode(), "Tâche".encode("latin-1")))
+    with pytest.raises(ConfigError, match=r"not UTF-8 text \(line 4, byte \d+: b'\\xe2'\)") as e:
+        phri.load_task(path)
+    assert str(e.value).startswith(f"{path}: ")
+
+
+@pytest.mark.parametrize("newline", ["\r\n", "\r"])
+def test_windows_and_old_mac_line_endings_still_load(tmp_path, newline) -> None:
+    path = tmp_path / "endings.toml"
+    path.write_bytes(_shipped_text("table").replace("\n", newline).encode())
+    assert phri.load_task(path).duration == 15.0
+
+
+@pytest.mark.parametrize("name", ["coffee", "human", "laptop", "table"])
+def test_shipped_tasks_spell_out_the_default_scene(name, robot) -> None:
+    written = tomllib.loads(_shipped_text(name))["scene"]
+    defaults = dataclasses.asdict(Scene())
+    assert written == {k: list(v) if isinstance(v, tuple) else v for k, v in defaults.items()}
+    task = phri.load_task(name)
+    assert task.scene == Scene()
+    # The feature values are the original ones: the scene as the planner passes it = phri_core's defaults.
+    s = task.scene
+    names = list(KNOWN_FEATURES)
+    from_task = phri.Features(
+        robot, names, laptop_center=s.laptop_center, human_center=s.human_center, radius=s.radius,
+        samples=s.samples,
+    )  # fmt: skip
+    xi = np.linspace(task.start, task.goal, task.waypoints)
+    np.testing.assert_array_equal(from_task.phi(xi), phri.Features(robot, names).phi(xi))
+
+
+def test_scene_values_are_read_from_the_file(tmp_path) -> None:
+    path = _variant(tmp_path, "radius = 0.4 ", "radius = 0.3 ")
+    path.write_text(path.read_text().replace("human_center = [0.0, 0.2]", "human_center = [0.1, 0.5]"))
+    scene = phri.load_task(path).scene
+    assert (scene.radius, scene.human_center, scene.laptop_center) == (0.3, (0.1, 0.5), (-0.7929, -0.1))
+
+
+def test_a_scene_that_is_not_a_table_is_an_error(tmp_path) -> None:
+    text = _shipped_text("table")
+    path = tmp_path / "scene.toml"
+    path.write_text("scene = 3\n" + text[: text.index("# Where the objects are")])
+    message = f"{path}: key 'scene' must be a table, e.g. [scene], got 3"
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        phri.load_task(path)

@@ -77,6 +77,34 @@ def test_learning_takes_less_effort_and_time_and_ends_closer_to_the_desired_cost
         np.testing.assert_array_equal(imp.final_weights, imp.initial_weights)
 
 
+@pytest.mark.slow
+def test_after_a_replan_the_arm_keeps_within_its_velocity_limits(world, planners, tmp_path) -> None:
+    """The reference blends into each new plan (TimedTrajectory.switch_to), so the arm does not snap
+    onto it; with the original's instant switch it does, at well over its limits."""
+    person = ParticipantParams.draw(np.random.default_rng(7))
+    limits = world.model.velocity_limits
+    for name in ("human", "table", "laptop"):
+        task = phri.load_task(name)
+        speeds = {}
+        for speed in (0.8, 0.0):
+            log = tmp_path / f"{name}-{speed}.npz"
+            config = EpisodeConfig(strategy="learning", transition_speed=speed)
+            r = run_episode(task, world, person, config, seed=3, planner=planners[name], log_path=log)
+            assert r.final_weights[task.task_index] > 0, name
+            with np.load(log) as data:
+                t, q_ref, free = data["t"], data["q_ref"], ~np.any(data["push"] != 0, axis=1)
+                reference = np.abs(np.diff(q_ref, axis=0) / np.diff(t)[:, None]) / limits
+                # While the person pushes, they move the arm as fast as they like; otherwise it
+                # follows its reference.
+                speeds[speed] = float((np.abs(data["qd"][free]) / limits).max())
+            if speed:
+                assert reference.max() <= speed + 0.02, (
+                    f"{name}: reference at {reference.max():.2f}× the limits"
+                )
+        assert speeds[0.8] <= 1.0, f"{name}: the arm reached {speeds[0.8]:.2f}× its velocity limits"
+        assert speeds[0.0] > 1.2, f"{name}: the instant switch no longer snaps ({speeds[0.0]:.2f}×)"
+
+
 def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planners, tmp_path) -> None:
     task = phri.load_task("laptop")
     short = phri.Task(**{**task.__dict__, "duration": 3.0, "waypoints": 7})
@@ -93,6 +121,7 @@ def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planne
             "q_ref",
             "tau",
             "u_h",
+            "push",
             "weights",
             "weights_t",
             "plans",

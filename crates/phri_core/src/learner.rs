@@ -23,13 +23,27 @@ pub struct LearnerParams {
     pub duration: f64,
     /// Interpolation of the plan for the reference.
     pub interpolation: Interpolation,
+    /// After a replan the reference blends into the new plan with each joint's speed at most this
+    /// fraction of its velocity limit (`TimedTrajectory::switch_to`); 0 switches at once, as the
+    /// original did (the arm then snaps onto the new plan, faster than its limits).
+    pub transition_speed: f64,
 }
 
 impl Default for LearnerParams {
     fn default() -> Self {
-        LearnerParams { learning: true, sample_period: 0.1, duration: 15.0, interpolation: Interpolation::Cubic }
+        LearnerParams {
+            learning: true,
+            sample_period: 0.1,
+            duration: 15.0,
+            interpolation: Interpolation::Cubic,
+            transition_speed: DEFAULT_TRANSITION_SPEED,
+        }
     }
 }
+
+/// Default [`LearnerParams::transition_speed`]: plans use up to half the limits (the study's
+/// planner), so a blend on top of one stays within them with a margin for tracking.
+pub const DEFAULT_TRANSITION_SPEED: f64 = 0.8;
 
 /// One sampled interaction and what the learner did with it.
 #[derive(Debug, Clone, PartialEq)]
@@ -81,8 +95,12 @@ pub struct Learner {
     plan: TimedTrajectory,
     /// Index k of the next sample instant k·sample_period.
     next_sample: f64,
+    /// transition_speed × velocity limits [rad/s] (empty: switch at once).
+    speed_limits: Vec<f64>,
     // Workspaces.
     candidate: Vec<f64>,
+    tracked: Vec<f64>,
+    rates: Vec<f64>,
     deformed: Vec<f64>,
     shape: Vec<f64>,
     phi_r: Vec<f64>,
@@ -123,6 +141,23 @@ impl Learner {
                 format!("must be a finite time > 0 s, got {}", params.sample_period),
             ));
         }
+        if !(params.transition_speed.is_finite() && params.transition_speed >= 0.0) {
+            return Err(PhriError::invalid(
+                "transition_speed",
+                format!("must be a finite fraction of the velocity limits >= 0, got {}", params.transition_speed),
+            ));
+        }
+        let speed_limits: Vec<f64> = if params.transition_speed > 0.0 {
+            features.model().velocity_limits().iter().map(|v| v * params.transition_speed).collect()
+        } else {
+            Vec::new()
+        };
+        if let Some((j, v)) = speed_limits.iter().enumerate().find(|(_, v)| !(**v > 0.0)) {
+            return Err(PhriError::invalid(
+                "transition_speed",
+                format!("needs velocity limits > 0, but joint {j} has {v} rad/s; use 0 to switch plans at once"),
+            ));
+        }
         crate::error::check_vector("weights", weights, k)?;
         let mut weights = weights.to_vec();
         update.clip(&mut weights);
@@ -143,7 +178,10 @@ impl Learner {
             goal: goal.to_vec(),
             plan,
             next_sample: 0.0,
+            speed_limits,
             candidate: vec![0.0; m * n],
+            tracked: vec![0.0; m * n],
+            rates: vec![0.0; 2 * n],
             deformed: vec![0.0; m * n],
             shape: vec![0.0; m * n],
             phi_r: vec![0.0; k],
@@ -221,15 +259,32 @@ impl Learner {
         Ok(obs)
     }
 
+    /// ξ_R as the robot tracks it now, at the plan's waypoint times, into `tracked`: the plan's
+    /// waypoints, or while a switch to it is still blending, the blended reference.
+    fn track(&mut self) {
+        let n = self.plan.dof();
+        if self.plan.blend_end() == 0.0 {
+            self.tracked.copy_from_slice(self.plan.waypoints());
+            return;
+        }
+        let dt = self.plan.dt();
+        let (qd, qdd) = self.rates.split_at_mut(n);
+        for (i, q) in self.tracked.chunks_exact_mut(n).enumerate() {
+            self.plan.sample(i as f64 * dt, q, qd, qdd);
+        }
+    }
+
     fn learn(&mut self, t: f64, record: &mut Interaction) -> Result<()> {
         let n = self.plan.dof();
         let index = self.plan.index_at(t);
-        self.deformed.copy_from_slice(self.plan.waypoints());
+        // The push deforms the trajectory the arm is following (Algorithm 1's ξ_R^t).
+        self.track();
+        self.deformed.copy_from_slice(&self.tracked);
         record.moved = self.deformation.deform_in_place(&mut self.deformed, n, index, &self.u_h)?;
         if record.moved == 0 {
             return Ok(());
         }
-        self.features.phi(self.plan.waypoints(), &mut self.phi_r)?;
+        self.features.phi(&self.tracked, &mut self.phi_r)?;
         self.features.phi(&self.deformed, &mut self.phi_h)?;
         for k in 0..self.delta_phi.len() {
             self.delta_phi[k] = self.phi_h[k] - self.phi_r[k];
@@ -253,7 +308,7 @@ impl Learner {
             Some(self.plan.waypoints()),
             &mut self.candidate,
         )?;
-        self.plan.set_waypoints(&self.candidate)?;
+        self.plan.switch_to(&self.candidate, t, &self.speed_limits)?;
         record.replan = Some(replan);
         self.history.plans.push((t, self.candidate.clone()));
         Ok(())
@@ -266,7 +321,7 @@ impl Learner {
         self.shape.fill(0.0);
         let ones = vec![1.0; n];
         self.deformation.deform_in_place(&mut self.shape, n, index, &ones)?;
-        self.features.phi_gradient(self.plan.waypoints(), &mut self.phi_r, &mut self.jacobian)?;
+        self.features.phi_gradient(&self.tracked, &mut self.phi_r, &mut self.jacobian)?;
         self.sensitivity.fill(0.0);
         for k in 0..k_len {
             for i in 0..m {

@@ -1,5 +1,15 @@
 //! A planned trajectory in time: N waypoints evenly spaced over [0, T], interpolated to give the
 //! reference (q_R, q̇_R, q̈_R) the control law tracks at any time t.
+//!
+//! # Switching to a new plan
+//! After a replan the original system tracked the new plan at once, at the same clock time: the
+//! reference jumps by however far the new plan lies from the old one (tens of centimetres at the
+//! hand after a large weight change), and an impedance-controlled arm snaps after it at several
+//! times its joint velocity limits. [`TimedTrajectory::switch_to`] keeps the reference C¹ instead:
+//! it adds to the new plan an offset e(τ) that starts at the old reference's position and velocity
+//! and decays to zero by the cubic Hermite blend e(τ) = h₀₀(σ)·Δq + h₁₀(σ)·D·Δq̇, σ = τ/D, with
+//! the shortest blend time D that keeps every joint's reference speed within a given limit (checked
+//! on 64 points of the blend). [`TimedTrajectory::set_waypoints`] keeps the original's instant switch.
 
 use crate::error::{check_finite, PhriError, Result};
 
@@ -21,6 +31,59 @@ pub struct TimedTrajectory {
     n: usize,
     duration: f64,
     interpolation: Interpolation,
+    blend: Blend,
+    scratch: Scratch,
+}
+
+/// Per-joint buffers for [`TimedTrajectory::switch_to`], so that it allocates nothing.
+#[derive(Debug, Clone, Default)]
+struct Scratch {
+    q_old: Vec<f64>,
+    v_old: Vec<f64>,
+    q: Vec<f64>,
+    v: Vec<f64>,
+    a: Vec<f64>,
+}
+
+/// The decaying offset from the previous plan after [`TimedTrajectory::switch_to`] (see the
+/// module docs), and scratch for computing it.
+#[derive(Debug, Clone)]
+struct Blend {
+    /// Time the blend began [s] and its length D [s]; D = 0: no blend.
+    start: f64,
+    length: f64,
+    /// Δq [rad] and Δq̇ [rad/s]: old reference minus new plan at `start`.
+    offset: Vec<f64>,
+    rate: Vec<f64>,
+}
+
+/// Points of a blend at which the speed limit is checked.
+const BLEND_CHECKS: usize = 64;
+
+impl Blend {
+    fn new(n: usize) -> Self {
+        Blend { start: 0.0, length: 0.0, offset: vec![0.0; n], rate: vec![0.0; n] }
+    }
+
+    /// Adds the offset at time `t` [s] (no-op outside the blend).
+    #[inline]
+    fn add(&self, t: f64, q: &mut [f64], qd: &mut [f64], qdd: &mut [f64]) {
+        let d = self.length;
+        if !(d > 0.0 && t >= self.start && t < self.start + d) {
+            return;
+        }
+        let s = (t - self.start) / d;
+        let (s2, s3) = (s * s, s * s * s);
+        let (h00, h10) = (2.0 * s3 - 3.0 * s2 + 1.0, s3 - 2.0 * s2 + s);
+        let (d00, d10) = (6.0 * s2 - 6.0 * s, 3.0 * s2 - 4.0 * s + 1.0);
+        let (e00, e10) = (12.0 * s - 6.0, 6.0 * s - 4.0);
+        for j in 0..q.len() {
+            let (dp, dv) = (self.offset[j], self.rate[j] * d);
+            q[j] += h00 * dp + h10 * dv;
+            qd[j] += (d00 * dp + d10 * dv) / d;
+            qdd[j] += (e00 * dp + e10 * dv) / (d * d);
+        }
+    }
 }
 
 impl TimedTrajectory {
@@ -33,12 +96,22 @@ impl TimedTrajectory {
         if !(duration.is_finite() && duration > 0.0) {
             return Err(PhriError::invalid("duration", format!("must be a finite time > 0 s, got {duration}")));
         }
-        let mut t = TimedTrajectory { tangents: vec![0.0; waypoints.len()], waypoints, n, duration, interpolation };
+        let scratch = Scratch { q_old: vec![0.0; n], v_old: vec![0.0; n], q: vec![0.0; n], v: vec![0.0; n], a: vec![0.0; n] };
+        let mut t = TimedTrajectory {
+            tangents: vec![0.0; waypoints.len()],
+            waypoints,
+            n,
+            duration,
+            interpolation,
+            blend: Blend::new(n),
+            scratch,
+        };
         t.update_tangents();
         Ok(t)
     }
 
-    /// Replaces the waypoints (same shape), e.g. after a replan; allocates nothing.
+    /// Replaces the waypoints (same shape), e.g. after a replan, taking effect at once (the
+    /// original's switch; any blend in progress ends); allocates nothing.
     pub fn set_waypoints(&mut self, waypoints: &[f64]) -> Result<()> {
         if waypoints.len() != self.waypoints.len() {
             return Err(PhriError::shape(
@@ -50,7 +123,72 @@ impl TimedTrajectory {
         check_finite("waypoints", waypoints)?;
         self.waypoints.copy_from_slice(waypoints);
         self.update_tangents();
+        self.blend.length = 0.0;
         Ok(())
+    }
+
+    /// Switches to new `waypoints` at time `t` [s] without a jump: the reference keeps its position
+    /// and velocity at `t` and blends into the new plan (module docs) within `speed_limits`
+    /// [rad/s] per joint, or at once when `speed_limits` is empty. Where the new plan alone is
+    /// faster than a limit, the blend adds nothing beyond the plan's own speed there. Returns the
+    /// blend time D [s]. Allocates nothing.
+    pub fn switch_to(&mut self, waypoints: &[f64], t: f64, speed_limits: &[f64]) -> Result<f64> {
+        check_finite("t", &[t])?;
+        if !speed_limits.is_empty() {
+            crate::error::check_vector("speed_limits", speed_limits, self.n)?;
+            if let Some((j, v)) = speed_limits.iter().enumerate().find(|(_, v)| !(**v > 0.0)) {
+                return Err(PhriError::invalid("speed_limits", format!("[{j}] must be > 0 rad/s, got {v}")));
+            }
+        }
+        let mut sc = std::mem::take(&mut self.scratch);
+        self.sample(t, &mut sc.q_old, &mut sc.v_old, &mut sc.a); // the reference so far
+        let result = self.set_waypoints(waypoints);
+        if result.is_ok() && !speed_limits.is_empty() {
+            self.start_blend(t, speed_limits, &mut sc);
+        }
+        self.scratch = sc;
+        result.map(|_| self.blend.length)
+    }
+
+    /// Sets the blend from the old reference in `sc` into the current plan at `t` (see `switch_to`).
+    fn start_blend(&mut self, t: f64, limits: &[f64], sc: &mut Scratch) {
+        self.sample_plan(t, &mut sc.q, &mut sc.v, &mut sc.a);
+        let mut needed: f64 = 0.0;
+        let mut largest: f64 = 0.0;
+        for j in 0..self.n {
+            self.blend.offset[j] = sc.q_old[j] - sc.q[j];
+            self.blend.rate[j] = sc.v_old[j] - sc.v[j];
+            // The position offset alone moves at most 1.5·|Δq|/D (max |h₀₀'| = 3/2).
+            needed = needed.max(1.5 * self.blend.offset[j].abs() / limits[j]);
+            largest = largest.max(self.blend.offset[j].abs()).max(self.blend.rate[j].abs() * self.dt());
+        }
+        self.blend.start = t;
+        if !(largest > 1e-12) {
+            self.blend.length = 0.0;
+            return;
+        }
+        // Lengthen the blend until the reference keeps to the limits (or to the plan's own speed).
+        // q_old and v_old are free now: they hold the blended reference at each check.
+        let mut length = needed.max(1e-3);
+        for _ in 0..60 {
+            self.blend.length = length;
+            let mut ok = true;
+            for k in 1..=BLEND_CHECKS {
+                let tk = t + length * k as f64 / (BLEND_CHECKS + 1) as f64;
+                self.sample_plan(tk, &mut sc.q, &mut sc.v, &mut sc.a);
+                sc.q_old.copy_from_slice(&sc.q);
+                sc.v_old.copy_from_slice(&sc.v);
+                self.blend.add(tk, &mut sc.q_old, &mut sc.v_old, &mut sc.a);
+                ok = (0..self.n).all(|j| sc.v_old[j].abs() <= limits[j].max(sc.v[j].abs()) * (1.0 + 1e-9));
+                if !ok {
+                    break;
+                }
+            }
+            if ok {
+                break;
+            }
+            length *= 1.25;
+        }
     }
 
     fn update_tangents(&mut self) {
@@ -106,8 +244,25 @@ impl TimedTrajectory {
         }
     }
 
-    /// Position [rad], velocity [rad/s] and acceleration [rad/s²] at time `t` [s] into the slices.
+    /// Position [rad], velocity [rad/s] and acceleration [rad/s²] at time `t` [s] into the slices,
+    /// including the blend from the previous plan after [`TimedTrajectory::switch_to`].
+    #[inline]
     pub fn sample(&self, t: f64, q: &mut [f64], qd: &mut [f64], qdd: &mut [f64]) {
+        self.sample_plan(t, q, qd, qdd);
+        self.blend.add(t, q, qd, qdd);
+    }
+
+    /// Time [s] at which the blend into the current plan ends (0 when there is none).
+    pub fn blend_end(&self) -> f64 {
+        if self.blend.length > 0.0 {
+            self.blend.start + self.blend.length
+        } else {
+            0.0
+        }
+    }
+
+    /// The current plan alone at time `t`, without the blend.
+    pub fn sample_plan(&self, t: f64, q: &mut [f64], qd: &mut [f64], qdd: &mut [f64]) {
         let (n, m) = (self.n, self.len());
         let dt = self.dt();
         if !(t > 0.0) || t >= self.duration {

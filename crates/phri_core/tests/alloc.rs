@@ -68,6 +68,7 @@ fn a_control_tick_allocates_nothing() {
     let waypoints: Vec<f64> = (0..31 * 7).map(|i| 3.0 + 0.01 * (i as f64).sin()).collect();
     let plan = TimedTrajectory::new(waypoints.clone(), 7, 15.0, Interpolation::Cubic).unwrap();
     let mut plan2 = plan.clone();
+    let shifted: Vec<f64> = waypoints.iter().map(|v| v + 0.1).collect();
     let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
     let (mut q_ref, mut qd_ref, mut qdd_ref, mut tau, mut u_h) = ([0.0; 7], [0.0; 7], [0.0; 7], [0.0; 7], [0.0; 7]);
     let q = [3.0; 7];
@@ -86,6 +87,10 @@ fn a_control_tick_allocates_nothing() {
         controller.torque_implicit(&q, &qd, &q_ref, &qd_ref, 1e-3, &mut tau).unwrap();
         if k % 100 == 0 {
             plan2.set_waypoints(&waypoints).unwrap();
+        }
+        if k % 100 == 50 {
+            // A replan's switch: blended into a plan 0.1 rad away, within 0.5 rad/s.
+            plan2.switch_to(&shifted, t, &[0.5; 7]).unwrap();
         }
     }
     let after = ALLOCATIONS.load(Ordering::SeqCst);

@@ -10,6 +10,7 @@ use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::reference::{Interpolation, TimedTrajectory};
 use phri_core::update::{relevance, UpdateParams, UpdateRule, WeightUpdate};
+use phri_core::PhriError;
 use proptest::prelude::*;
 
 fn place_lower() -> Vec<f64> {
@@ -175,6 +176,91 @@ fn the_reference_is_continuous_and_holds_its_ends() {
     }
     assert!(TimedTrajectory::new(vec![0.0; 7], 7, 15.0, Interpolation::Cubic).is_err());
     assert!(TimedTrajectory::new(vec![0.0; 14], 7, 0.0, Interpolation::Cubic).is_err());
+}
+
+/// A slow 31-waypoint plan over 15 s of `n` joints, offset by `shift` [rad] in the middle.
+fn slow_plan(n: usize, shift: f64) -> Vec<f64> {
+    (0..31 * n)
+        .map(|k| {
+            let (i, j) = ((k / n) as f64, (k % n) as f64);
+            3.0 + 0.2 * (0.1 * i + j).sin() + shift * (std::f64::consts::PI * i / 30.0).sin()
+        })
+        .collect()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+    /// After `switch_to` at t0 the reference starts where the old one was (position and velocity),
+    /// stays within the speed limits, ends on the new plan, and its velocity is its derivative.
+    #[test]
+    fn switching_plans_is_continuous_and_within_the_speed_limits(
+        t0 in 0.2..13.0f64, shift in -0.8..0.8f64, limit in 0.2..1.0f64, cubic in any::<bool>(), first in -0.3..0.3f64,
+    ) {
+        let n = 7;
+        let interp = if cubic { Interpolation::Cubic } else { Interpolation::Linear };
+        let mut traj = TimedTrajectory::new(slow_plan(n, first), n, 15.0, interp).unwrap();
+        let limits = vec![limit; n];
+        // A switch before (so the old reference may itself be blending), then the one under test.
+        traj.switch_to(&slow_plan(n, 0.5 * first), 0.5 * t0, &limits).unwrap();
+        let old = traj.clone();
+        let new = slow_plan(n, shift);
+        let length = traj.switch_to(&new, t0, &limits).unwrap();
+        let end = if length > 0.0 { t0 + length } else { 0.0 };
+        prop_assert!(length >= 0.0 && traj.blend_end() == end);
+        let (mut qa, mut va, mut qb, mut vb, mut acc) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        old.sample(t0, &mut qa, &mut va, &mut acc);
+        traj.sample(t0, &mut qb, &mut vb, &mut acc);
+        for j in 0..n {
+            prop_assert!((qa[j] - qb[j]).abs() < 1e-12 && (va[j] - vb[j]).abs() < 1e-9, "jump at t0, joint {}", j);
+        }
+        // The speed of the old reference at t0 bounds nothing; from then on the limit holds
+        // wherever the new plan alone keeps to it (its own speed stays far below `limit` here, or
+        // the blend adds nothing beyond it).
+        let (mut qp, mut vp) = (vec![0.0; n], vec![0.0; n]);
+        let h = 1e-6;
+        for k in 1..400 {
+            let t = t0 + k as f64 * (length.max(0.01) * 1.2) / 400.0;
+            traj.sample(t, &mut qb, &mut vb, &mut acc);
+            traj.sample_plan(t, &mut qp, &mut vp, &mut acc);
+            let start_speed = va.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for j in 0..n {
+                let allowed = limit.max(vp[j].abs()).max(if t < t0 + 0.02 * length { start_speed } else { 0.0 });
+                prop_assert!(vb[j].abs() <= allowed * (1.0 + 1e-6) + 1e-9, "t={} joint {}: {} > {}", t, j, vb[j], allowed);
+            }
+            let (mut q1, mut q2, mut v) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+            traj.sample(t - h, &mut q1, &mut v, &mut acc);
+            traj.sample(t + h, &mut q2, &mut v, &mut acc);
+            let on_knot = cubic == false && ((t / 0.5).fract() < 1e-4 || (t / 0.5).fract() > 1.0 - 1e-4);
+            for j in 0..n {
+                prop_assert!(on_knot || ((q2[j] - q1[j]) / (2.0 * h) - vb[j]).abs() < 1e-4, "velocity at t={}", t);
+            }
+        }
+        // After the blend the reference is the new plan.
+        let after = t0 + length + 1e-9;
+        let fresh = TimedTrajectory::new(new, n, 15.0, interp).unwrap();
+        traj.sample(after, &mut qa, &mut va, &mut acc);
+        fresh.sample(after, &mut qb, &mut vb, &mut acc);
+        prop_assert_eq!(qa, qb);
+    }
+}
+
+#[test]
+fn switching_needs_valid_limits_and_keeps_the_instant_switch_available() {
+    let n = 7;
+    let mut traj = TimedTrajectory::new(slow_plan(n, 0.0), n, 15.0, Interpolation::Cubic).unwrap();
+    assert!(matches!(traj.switch_to(&slow_plan(n, 0.5), 3.0, &[1.0; 6]), Err(PhriError::Shape { .. })));
+    assert!(matches!(traj.switch_to(&slow_plan(n, 0.5), 3.0, &[0.0; 7]), Err(PhriError::InvalidParameter { .. })));
+    assert!(matches!(traj.switch_to(&slow_plan(n, 0.5), f64::NAN, &[1.0; 7]), Err(PhriError::NonFinite { .. })));
+    // Without limits the switch is instant: the reference is the new plan at once.
+    assert_eq!(traj.switch_to(&slow_plan(n, 0.5), 3.0, &[]).unwrap(), 0.0);
+    let fresh = TimedTrajectory::new(slow_plan(n, 0.5), n, 15.0, Interpolation::Cubic).unwrap();
+    let (mut qa, mut qb, mut v, mut a) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    traj.sample(3.0, &mut qa, &mut v, &mut a);
+    fresh.sample(3.0, &mut qb, &mut v, &mut a);
+    assert_eq!(qa, qb);
+    // A blend that is long: a 0.8 rad shift at 0.1 rad/s needs at least 1.5·0.8/0.1 = 12 s.
+    let length = traj.switch_to(&slow_plan(n, -0.3), 2.0, &[0.1; 7]).unwrap();
+    assert!(length >= 12.0, "{length}");
 }
 
 #[test]

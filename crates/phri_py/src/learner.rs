@@ -1,7 +1,7 @@
 //! `phri.Learner`: Algorithm 1, the online learner that owns the plan and the weights.
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
-use phri_core::learner::{Learner, LearnerParams};
+use phri_core::learner::{Learner, LearnerParams, DEFAULT_TRANSITION_SPEED};
 use phri_core::reference::Interpolation;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -17,6 +17,8 @@ use crate::update::{PyUpdateInfo, PyWeightUpdate};
 /// Algorithm 1: at every sampled interaction, deform the plan (eq. 7), update the weights (eq. 13)
 /// and replan warm-started (eq. 4); `reference(t)` gives the control law its target. The components
 /// are copied in, so the objects passed can be reused. `learning=False` is the impedance baseline.
+/// After a replan the reference blends into the new plan with joint speeds of at most
+/// `transition_speed` × the velocity limits (0: switch at once, as the original did).
 #[pyclass(name = "Learner", module = "phri._phri")]
 pub struct PyLearner {
     learner: Learner,
@@ -30,7 +32,8 @@ impl PyLearner {
     #[new]
     #[pyo3(signature = (
         features, deformation, update, detector, optimizer, weights, start, goal, *,
-        duration = 15.0, sample_period = 0.1, interpolation = "cubic", learning = true
+        duration = 15.0, sample_period = 0.1, interpolation = "cubic", learning = true,
+        transition_speed = DEFAULT_TRANSITION_SPEED
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -47,6 +50,7 @@ impl PyLearner {
         sample_period: f64,
         interpolation: &str,
         learning: bool,
+        transition_speed: f64,
     ) -> PyResult<Self> {
         let interpolation = match interpolation {
             "cubic" => Interpolation::Cubic,
@@ -60,7 +64,7 @@ impl PyLearner {
         let weights = vector("weights", &weights, set.len())?.into_owned();
         let start = vector("start", &start, n)?.into_owned();
         let goal = vector("goal", &goal, n)?.into_owned();
-        let params = LearnerParams { learning, sample_period, duration, interpolation };
+        let params = LearnerParams { learning, sample_period, duration, interpolation, transition_speed };
         let (deformation, update, detector, optimizer) =
             (deformation.deformation.clone(), update.update.clone(), detector.detector.clone(), optimizer.optimizer.clone());
         let learner = py

@@ -79,10 +79,39 @@ impl PyTimedTrajectory {
         Ok(self.traj.index_at(t))
     }
 
-    /// Replaces the waypoints (same shape (N, n)), e.g. after a replan.
+    /// Replaces the waypoints (same shape (N, n)), e.g. after a replan, at once.
     fn set_waypoints(&mut self, waypoints: ArrayIn<'_>) -> PyResult<()> {
         let (values, _) = matrix("waypoints", &waypoints, Some(self.traj.len()), self.traj.dof())?;
         self.traj.set_waypoints(&values).py_err()
+    }
+
+    /// Switches to new waypoints (N, n) at time `t` [s] without a jump: the reference keeps its
+    /// position and velocity at `t` and blends into the new plan with every joint's speed within
+    /// `speed_limits` (n,) [rad/s] (None: at once). Returns the blend time [s].
+    #[pyo3(signature = (waypoints, t, speed_limits = None))]
+    fn switch_to(&mut self, waypoints: ArrayIn<'_>, t: f64, speed_limits: Option<ArrayIn<'_>>) -> PyResult<f64> {
+        check_time("t", t)?;
+        let (values, _) = matrix("waypoints", &waypoints, Some(self.traj.len()), self.traj.dof())?;
+        let limits = match &speed_limits {
+            Some(l) => vector("speed_limits", l, self.traj.dof())?.into_owned(),
+            None => Vec::new(),
+        };
+        self.traj.switch_to(&values, t, &limits).py_err()
+    }
+
+    /// The current plan alone at `t` [s], without the blend from a previous one: (q, q̇, q̈).
+    fn sample_plan<'py>(&self, py: Python<'py>, t: f64) -> PyResult<Triple<'py, PyArray1<f64>>> {
+        check_time("t", t)?;
+        let n = self.traj.dof();
+        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        self.traj.sample_plan(t, &mut q, &mut qd, &mut qdd);
+        Ok((PyArray1::from_vec(py, q), PyArray1::from_vec(py, qd), PyArray1::from_vec(py, qdd)))
+    }
+
+    /// Time [s] at which the blend into the current plan ends (0.0 when there is none).
+    #[getter]
+    fn blend_end(&self) -> f64 {
+        self.traj.blend_end()
     }
 
     /// A copy of the waypoints (N, n) [rad].

@@ -54,6 +54,10 @@ class EpisodeConfig:
     rule: str = "all"
     #: Time-series log rate [Hz].
     log_rate: float = 100.0
+    #: After a replan the reference blends into the new plan with joint speeds of at most this
+    #: fraction of the velocity limits; 0 switches at once as the original did (the arm then snaps
+    #: onto the new plan at several times its limits).
+    transition_speed: float = 0.8
 
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:
@@ -64,6 +68,11 @@ class EpisodeConfig:
             raise InvalidParameterError(f"log_rate must be in (0, 1000] Hz, got {self.log_rate}")
         if not self.sensor_noise >= 0:
             raise InvalidParameterError(f"sensor_noise must be >= 0 N·m, got {self.sensor_noise}")
+        if not 0 <= self.transition_speed <= 1:
+            raise InvalidParameterError(
+                "transition_speed must be a fraction of the velocity limits in [0, 1], "
+                f"got {self.transition_speed}"
+            )
 
 
 @dataclass
@@ -173,7 +182,7 @@ def run_episode(
         planner.features, Deformation(), update, InteractionDetector(), planner.optimizer,
         task.vector("initial"), task.start, task.goal,
         duration=task.duration, sample_period=1.0 / config.sample_rate,
-        learning=config.strategy == "learning",
+        learning=config.strategy == "learning", transition_speed=config.transition_speed,
     )  # fmt: skip
     initial_weights = learner.weights
     controller = ImpedanceController(model)
@@ -187,6 +196,8 @@ def run_episode(
     log_every = max(1, int(round(1.0 / (config.log_rate * dt))))
     rows = (steps + log_every - 1) // log_every
     log = {k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")}
+    #: The person's wrench at the hand (force [N], torque [N·m]); zero while nobody touches it.
+    log["push"] = np.zeros((rows, 6))
     log_t = np.zeros(rows)
     world.reset(task.start)
     measured = np.zeros(model.nq)
@@ -216,6 +227,8 @@ def run_episode(
                 log_t[row] = t
                 for key, v in (("q", q), ("qd", qd), ("q_ref", q_ref), ("tau", tau), ("u_h", measured)):
                     log[key][row] = v
+                if push is not None:
+                    log["push"][row] = np.concatenate(push)
                 row += 1
                 if push is None:
                     gap = model.frame_pose(HAND, q)[:3, 3] - model.frame_pose(HAND, q_ref)[:3, 3]

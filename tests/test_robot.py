@@ -590,8 +590,8 @@ def test_the_two_link_fixture_is_valid() -> None:
             r"the joints form a cycle through link",
         ),
         (
-            '<robot name="r"><link name="r"/><link name="a"/>'
-            '<joint name="aa" type="continuous"><parent link="a"/><child link="a"/><axis xyz="0 0 1"/></joint></robot>',
+            '<robot name="r"><link name="r"/><link name="a"/><joint name="aa" type="continuous">'
+            '<parent link="a"/><child link="a"/><axis xyz="0 0 1"/></joint></robot>',
             r"the joints form a cycle through link 'a'",
         ),
         ('<robot name="r"><link name="a"/><link name="a"/></robot>', r"link 'a' is defined twice"),

@@ -7,11 +7,18 @@ import numpy as np
 import pytest
 
 import phri
-from phri.exceptions import InvalidParameterError, SimulationError
+from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim import EpisodeConfig, ParticipantParams, Planner, World, run_episode
 from phri.sim.world import HAND
 
 NOBODY = ParticipantParams(tolerance=1e9, tilt_tolerance=1e9)
+
+
+def shortened(task: phri.Task, duration: float, waypoints: int) -> phri.Task:
+    """`task` cut to its first `duration` seconds: the goal moved towards the start in proportion,
+    so the plan moves as fast as the full task's."""
+    goal = task.start + (task.goal - task.start) * duration / task.duration
+    return phri.Task(**{**task.__dict__, "duration": duration, "waypoints": waypoints, "goal": goal})
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +114,7 @@ def test_after_a_replan_the_arm_keeps_within_its_velocity_limits(world, planners
 
 def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planners, tmp_path) -> None:
     task = phri.load_task("laptop")
-    short = phri.Task(**{**task.__dict__, "duration": 3.0, "waypoints": 7})
+    short = shortened(task, 3.0, 7)
     planner = Planner(short, world)
     person = ParticipantParams(tolerance=0.01, delay=0.05)
     a = run_episode(short, world, person, seed=5, planner=planner, log_path=tmp_path / "a.npz")
@@ -138,7 +145,7 @@ def test_a_simulator_failure_is_an_error_and_the_log_so_far_stays_readable(
     world, tmp_path, monkeypatch
 ) -> None:
     task = phri.load_task("table")
-    short = phri.Task(**{**task.__dict__, "duration": 1.0, "waypoints": 5})
+    short = shortened(task, 1.0, 5)
     planner = Planner(short, world)
     real_state, calls = world.state, {"n": 0}
 
@@ -153,6 +160,22 @@ def test_a_simulator_failure_is_an_error_and_the_log_so_far_stays_readable(
         run_episode(short, world, NOBODY, planner=planner, log_path=tmp_path / "partial.npz")
     with np.load(tmp_path / "partial.npz") as log:
         assert 25 <= len(log["t"]) <= 31
+    # Any other failure (a lost simulator, Ctrl-C) also keeps the log, and is re-raised as it was.
+    for error in (RuntimeError("the physics server disconnected"), KeyboardInterrupt()):
+        calls["n"] = 0
+
+        def interrupted_state(error=error):
+            calls["n"] += 1
+            if calls["n"] > 500:
+                raise error
+            return real_state()
+
+        monkeypatch.setattr(world, "state", interrupted_state)
+        path = tmp_path / f"{type(error).__name__}.npz"
+        with pytest.raises(type(error)):
+            run_episode(short, world, NOBODY, planner=planner, log_path=path)
+        with np.load(path) as log:
+            assert 45 <= len(log["t"]) <= 51
 
 
 def test_bad_task_input_is_a_clear_error(world, tmp_path) -> None:
@@ -160,10 +183,37 @@ def test_bad_task_input_is_a_clear_error(world, tmp_path) -> None:
     outside = phri.Task(**{**task.__dict__, "goal": np.zeros(7)})  # q = 0 violates joints 2, 4, 6
     with pytest.raises(InvalidParameterError, match="outside the limits"):
         Planner(outside, world)
+    # A goal too far for the duration at the allowed joint speeds.
+    hurried = phri.Task(**{**task.__dict__, "duration": 2.0, "waypoints": 5})
+    with pytest.raises(PlanningError, match=r"the goal is too far from the start for duration = 2 s"):
+        Planner(hurried, world)
+    far = task.goal.copy()
+    far[0] += 6.0  # joint 1 is continuous: a goal almost a turn away
+    with pytest.raises(PlanningError, match=r"moves joint 0 by .* make the task last about \d+ s"):
+        Planner(phri.Task(**{**task.__dict__, "goal": far}), world)
+    # A table top the hand cannot stay above.
+    high = phri.Task(**{**task.__dict__, "scene": phri.config.Scene(table_height=0.4)})
+    with pytest.raises(PlanningError, match=r"cannot keep the hand .* above the table top \(z = 0.4 m\)"):
+        Planner(high, world)
     with pytest.raises(InvalidParameterError, match="strategy"):
         EpisodeConfig(strategy="ignore")
     with pytest.raises(InvalidParameterError, match="sample_rate"):
         EpisodeConfig(sample_rate=0)
+
+
+def test_an_episode_places_the_objects_where_its_task_file_says(world) -> None:
+    task = phri.load_task("laptop")
+    moved = phri.config.Scene(laptop_center=(-0.6, 0.2), human_center=(0.1, 0.4))
+    short = phri.Task(**{**shortened(task, 1.0, 5).__dict__, "scene": moved})
+    run_episode(short, world, NOBODY, EpisodeConfig(strategy="impedance"))
+    p, c = world.p, world.client
+    laptop, _ = p.getBasePositionAndOrientation(world.laptop_id, physicsClientId=c)
+    human, _ = p.getBasePositionAndOrientation(world.human_id, physicsClientId=c)
+    np.testing.assert_allclose(laptop[:2], (-0.6, 0.3))  # the box's centre is 0.1 m from the feature's
+    np.testing.assert_allclose(human[:2], (0.1, 0.4))
+    run_episode(shortened(task, 1.0, 5), world, NOBODY, EpisodeConfig(strategy="impedance"))
+    laptop, _ = p.getBasePositionAndOrientation(world.laptop_id, physicsClientId=c)
+    np.testing.assert_allclose(laptop[:2], (-0.7929, 0.0))
 
 
 def test_participants_are_drawn_reproducibly_from_documented_ranges() -> None:

@@ -13,6 +13,7 @@ __all__ = [
     "NonFiniteError",
     "NotConvergedError",
     "PhriError",
+    "PlanningError",
     "ShapeError",
     "SimulationError",
     "UnknownNameError",
@@ -46,6 +47,11 @@ class UrdfError(PhriError, ValueError):
 
 class ConfigError(PhriError, ValueError):
     """A task, study or simulation file with a missing key or a wrong value (names file and key)."""
+
+
+class PlanningError(PhriError, ValueError):
+    """A task that cannot be planned as asked: its goal too far from its start for its duration at the
+    allowed joint speeds, or its clearance above the table out of reach."""
 
 
 class NotConvergedError(PhriError, RuntimeError):

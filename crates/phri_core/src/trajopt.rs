@@ -128,6 +128,10 @@ pub struct TrajoptInfo {
     pub penalty: f64,
     /// Largest clearance violation at the solution [m] (0 when satisfied or unused).
     pub max_violation: f64,
+    /// Largest joint step beyond `max_step` between consecutive waypoints [rad] (0 without
+    /// max_step): the quadratic penalty leaves about gradient/(2·step_weight); much more means
+    /// the goal is too far for the duration.
+    pub max_step_excess: f64,
     /// Met a tolerance (rather than an iteration or time cap).
     pub converged: bool,
     /// Wall time [s].
@@ -707,6 +711,18 @@ impl TrajectoryOptimizer {
         worst
     }
 
+    /// Largest |q_i,j − q_{i−1},j| − max_step_j of a trajectory [rad], at least 0.
+    fn step_excess(&self, traj: &[f64]) -> f64 {
+        let n = self.dof;
+        let mut worst: f64 = 0.0;
+        for i in 1..self.waypoints {
+            for (j, limit) in self.params.max_step.iter().enumerate() {
+                worst = worst.max((traj[i * n + j] - traj[(i - 1) * n + j]).abs() - limit);
+            }
+        }
+        worst
+    }
+
     /// Applies the inverse smoothness metric to the interior of `v` in place (per joint, O(N)).
     fn apply_metric_inverse(&self, v: &mut [f64]) {
         let (n, interior) = (self.dof, self.waypoints - 2);
@@ -797,6 +813,7 @@ impl TrajectoryOptimizer {
         out.copy_from_slice(&self.traj);
         let traj = std::mem::take(&mut self.traj);
         let max_violation = self.violation(features, &traj);
+        let max_step_excess = self.step_excess(&traj);
         self.traj = traj;
         Ok(TrajoptInfo {
             iterations,
@@ -804,6 +821,7 @@ impl TrajectoryOptimizer {
             cost,
             penalty,
             max_violation,
+            max_step_excess,
             converged,
             seconds: began.elapsed().as_secs_f64(),
         })

@@ -21,6 +21,7 @@ pub struct PyTrajoptInfo {
     pub cost: f64,
     pub penalty: f64,
     pub max_violation: f64,
+    pub max_step_excess: f64,
     pub converged: bool,
     pub seconds: f64,
 }
@@ -33,6 +34,7 @@ impl From<TrajoptInfo> for PyTrajoptInfo {
             cost: i.cost,
             penalty: i.penalty,
             max_violation: i.max_violation,
+            max_step_excess: i.max_step_excess,
             converged: i.converged,
             seconds: i.seconds,
         }
@@ -43,8 +45,8 @@ impl From<TrajoptInfo> for PyTrajoptInfo {
 impl PyTrajoptInfo {
     fn __repr__(&self) -> String {
         format!(
-            "TrajoptInfo(iterations={}, evaluations={}, cost={:.6}, penalty={:.3e}, max_violation={:.3e}, converged={}, seconds={:.3e})",
-            self.iterations, self.evaluations, self.cost, self.penalty, self.max_violation, self.converged, self.seconds
+            "TrajoptInfo(iterations={}, evaluations={}, cost={:.6}, penalty={:.3e}, max_violation={:.3e}, max_step_excess={:.3e}, converged={}, seconds={:.3e})",
+            self.iterations, self.evaluations, self.cost, self.penalty, self.max_violation, self.max_step_excess, self.converged, self.seconds
         )
     }
 }

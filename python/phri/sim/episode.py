@@ -21,10 +21,11 @@ from phri._phri import (
     Learner,
     TimedTrajectory,
     TrajectoryOptimizer,
+    TrajoptInfo,
     WeightUpdate,
 )
 from phri.config import Task
-from phri.exceptions import InvalidParameterError, SimulationError
+from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.participant import Participant, ParticipantParams
 from phri.sim.world import HAND, World
 
@@ -37,6 +38,10 @@ HAND_CLEARANCE = 0.1016
 CUP_CLEARANCE = 0.06
 #: Plans move each joint at most this fraction of its velocity limit (between waypoints).
 VELOCITY_MARGIN = 0.5
+#: A plan may exceed its joint step by this fraction (the quadratic penalty's give at an optimum) [-].
+STEP_TOLERANCE = 0.05
+#: A plan may dip below its clearance by this much (the penalty's documented tolerance) [m].
+CLEARANCE_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -138,8 +143,38 @@ class Planner:
         )
         world.model.check_limits(task.start)
         world.model.check_limits(task.goal)
-        self.desired, _ = self.optimizer.solve(task.vector("true"), task.start, task.goal)
+        self.max_step = max_step
+        self.desired, info = self.optimizer.solve(task.vector("true"), task.start, task.goal)
+        self.check(self.desired, info, "true")
         self.desired_cost = float(self.features.phi(self.desired)[task.task_index])
+
+    def check(self, plan: np.ndarray, info: TrajoptInfo, weights: str) -> None:
+        """Raises PlanningError, naming the task file and the cause, unless `plan` (for the task's
+        `weights` weights) keeps to the joint speeds and the clearance."""
+        task = self.task
+        excess = np.abs(np.diff(plan, axis=0)) - self.max_step
+        i, j = np.unravel_index(np.argmax(excess / self.max_step), excess.shape)
+        if info.max_violation > CLEARANCE_TOLERANCE:
+            raise PlanningError(
+                f"{task.source}: the plan for the {weights} weights cannot keep the hand "
+                f"{HAND_CLEARANCE} m and the cup {CUP_CLEARANCE} m above the table top "
+                f"(z = {task.scene.table_height} m): it dips {info.max_violation:.3f} m below; "
+                "check start, goal and scene.table_height"
+            )
+        if excess[i, j] > STEP_TOLERANCE * self.max_step[j]:
+            needed = task.duration * (1 + excess[i, j] / self.max_step[j])
+            step = abs(plan[i + 1, j] - plan[i, j])
+            raise PlanningError(
+                f"{task.source}: the goal is too far from the start for duration = {task.duration:g} s: "
+                f"the plan for the {weights} weights moves joint {j} by {step:.3f} rad between waypoints "
+                f"{i} and {i + 1}, more than {VELOCITY_MARGIN:g} × its velocity limit allows "
+                f"({self.max_step[j]:.3f} rad); make the task last about {needed:.0f} s or move the goal"
+            )
+        if not info.converged:
+            raise PlanningError(
+                f"{task.source}: the plan for the {weights} weights did not converge "
+                f"({info.iterations} iterations, cost {info.cost:.6g})"
+            )
 
 
 def _write_log(path: Path, arrays: dict[str, np.ndarray]) -> Path:
@@ -199,6 +234,7 @@ def run_episode(
     #: The person's wrench at the hand (force [N], torque [N·m]); zero while nobody touches it.
     log["push"] = np.zeros((rows, 6))
     log_t = np.zeros(rows)
+    world.set_scene(task.scene)
     world.reset(task.start)
     measured = np.zeros(model.nq)
     tau = np.zeros(model.nq)
@@ -239,7 +275,7 @@ def run_episode(
                 world.step(tau)
             else:
                 world.step(tau, push[0], push[1])
-    except SimulationError as e:
+    except BaseException as e:  # noqa: BLE001 - the log so far is written first, then it is re-raised
         error = e
     interactions = learner.interactions()
     u = np.array([i["u_h"] for i in interactions]).reshape(-1, model.nq)
@@ -280,6 +316,8 @@ def run_episode(
                 "desired": planner.desired, "feature_names": np.array(task.feature_names),
             },
         )  # fmt: skip
-    if error is not None:
+    if isinstance(error, SimulationError):
         raise SimulationError(f"{task.name}/{config.strategy}: {error} (log so far: {result.log})") from error
+    if error is not None:
+        raise error
     return result

@@ -125,7 +125,9 @@ class World:
 
         top = s.table_height
         # Mount under the robot base, table top at `table_height`, spanning x in [-0.81, 0].
-        box([0.08, 0.08, (0.0 - (top - 0.7)) / 2], [0.0, 0.0, (top - 0.7) / 2], [0.3, 0.3, 0.3, 1], False)
+        self.mount_id = box(
+            [0.08, 0.08, (0.0 - (top - 0.7)) / 2], [0.0, 0.0, (top - 0.7) / 2], [0.3, 0.3, 0.3, 1], False
+        )
         self.table_id = box([0.405, 0.81, 0.02], [-0.405, 0.0, top - 0.02], [0.6, 0.45, 0.3, 1])
         lx, ly = s.laptop_center
         self.laptop_id = box([0.115, 0.15, 0.0125], [lx, ly + 0.1, top + 0.0125], [0.15, 0.15, 0.18, 1])
@@ -135,6 +137,15 @@ class World:
             p.GEOM_CYLINDER, radius=0.15, length=1.7, rgbaColor=[0.85, 0.6, 0.45, 0.35], physicsClientId=c
         )
         self.human_id = p.createMultiBody(0, -1, vis, basePosition=[hx, hy, top + 0.85], physicsClientId=c)
+
+    def set_scene(self, scene: Scene) -> None:
+        """Moves the table, laptop and person to `scene` (a task's [scene]); no-op if already there."""
+        if scene == self.scene:
+            return
+        for body in (self.mount_id, self.table_id, self.laptop_id, self.human_id):
+            self.p.removeBody(body, physicsClientId=self.client)
+        self.scene = scene
+        self._build_scene()
 
     def reset(self, q: np.ndarray) -> None:
         """Puts the arm at rest at `q` [rad] and the cup in the hand."""

@@ -11,11 +11,19 @@ import pytest
 from scipy import stats
 
 from phri.exceptions import ConfigError
+from phri.study import StudyConfig, run_study
 from phri.study import questionnaire as q
 from phri.study.cli import main as cli
 from phri.study.errors import QuestionnaireError
 
 HEADER = "participant,strategy," + ",".join(f"q{i}" for i in range(1, 11))
+#: A study of four participants (no episodes are run: the questionnaire only needs its folder).
+FOUR = StudyConfig(participants=4, tasks=("human", "laptop"), duration=8.0, waypoints=5)
+
+
+def study_folder(path: Path, config: StudyConfig = FOUR) -> Path:
+    run_study(path, config, backend="serial", progress=False, max_episodes=0)
+    return path
 
 
 def write_csv(path: Path, rows: list[str]) -> Path:
@@ -128,6 +136,9 @@ def test_csv_import(tmp_path: Path) -> None:
             ["1,impedance,1,7,2,6,7,1,3,5,2,6", "1,impedance,1,7,2,6,7,1,3,5,2,6"],
             r"line 3: participant 1 answered twice",
         ),
+        (["0,impedance,1,7,2,6,7,1,3,5,2,6"], r"line 2: column 'participant' must be >= 1"),
+        # Blank lines are skipped, and the line named is the file's.
+        (["1,impedance,1,7,2,6,7,1,3,5,2,6", "", "2,impedance,1,7,2,6,9,1,3,5,2,6"], r"line 4: column 'q5'"),
         ([], "no responses"),
     ],
 )
@@ -212,8 +223,7 @@ def test_table1_matches_paired_t_tests() -> None:
 
 
 def test_cli_import_and_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    run_dir = tmp_path / "study"
-    run_dir.mkdir()
+    run_dir = study_folder(tmp_path / "study")
     source = tmp_path / "answers.csv"
     synthetic(4).to_csv(source, index=False)
     assert cli(["questionnaire", str(run_dir), "--import", str(source)]) == 0
@@ -228,3 +238,81 @@ def test_cli_import_and_report(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "differs from the answers already" in capsys.readouterr().err
     assert (run_dir / "questionnaire.csv").read_bytes() == before
     assert cli(["questionnaire", str(tmp_path / "nowhere"), "--import", str(source)]) == 2
+    # A folder without a study: nothing to check the answers against.
+    (tmp_path / "bare").mkdir()
+    assert cli(["questionnaire", str(tmp_path / "bare"), "--import", str(source)]) == 2
+    assert "no study.json" in capsys.readouterr().err
+    assert not (tmp_path / "bare" / "questionnaire.csv").exists()
+
+
+@pytest.mark.parametrize(
+    ("row", "match"),
+    [
+        ("5,learning,1,7,2,6,7,1,3,5,2,6",
+         r"line 4: column 'participant' must be one of the study's participants 1-4, got 5"),
+        ("2,learnin,1,7,2,6,7,1,3,5,2,6",
+         r"line 4: column 'strategy' must be one of the study's strategies \['impedance', 'learning'\], "
+         r"got 'learnin'"),
+    ],
+)  # fmt: skip
+def test_import_checks_the_study_and_is_all_or_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], row: str, match: str
+) -> None:
+    """One row for a participant or strategy the study does not have: an error naming the line and
+    the column, and none of the valid rows before it is added."""
+    run_dir = study_folder(tmp_path / "study")
+    target = run_dir / "questionnaire.csv"
+    source = write_csv(
+        tmp_path / "a.csv", ["1,impedance,1,7,2,6,7,1,3,5,2,6", "1,learning,6,2,7,1,2,6,5,3,6,2", row]
+    )
+    with pytest.raises(QuestionnaireError, match=match) as info:
+        q.import_responses(source, target, study=FOUR)
+    assert str(source) in str(info.value)
+    assert not target.exists()
+    # With answers already there: the file is unchanged.
+    q.append_response(target, 3, "learning", {f"q{i}": 4 for i in range(1, 11)}, study=FOUR)
+    before = target.read_bytes()
+    assert cli(["questionnaire", str(run_dir), "--import", str(source)]) == 2
+    assert "line 4" in capsys.readouterr().err
+    assert target.read_bytes() == before
+    assert not list(run_dir.glob("*.partial"))
+    # The same rows without the bad one go in, all at once, after the existing answer.
+    write_csv(source, ["1,impedance,1,7,2,6,7,1,3,5,2,6", "1,learning,6,2,7,1,2,6,5,3,6,2"])
+    assert q.import_responses(source, target, study=FOUR) == 2
+    assert q.read_responses(target)[["participant", "strategy"]].values.tolist() == [
+        [3, "learning"], [1, "impedance"], [1, "learning"],
+    ]  # fmt: skip
+
+
+def test_terminal_entry_checks_the_study_before_asking(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    run_dir = study_folder(tmp_path / "study")
+
+    def ask(participant: int, strategy: str) -> dict[str, int]:
+        raise AssertionError("asked although the participant or strategy is not the study's")
+
+    monkeypatch.setattr(q, "ask", ask)
+    assert cli(["questionnaire", str(run_dir), "--participant", "9", "--strategy", "learning"]) == 2
+    err = capsys.readouterr().err
+    assert "questionnaire: --participant must be one of the study's participants 1-4, got 9" in err
+    assert cli(["questionnaire", str(run_dir), "--participant", "2", "--strategy", "telepathy"]) == 2
+    assert "--strategy must be one of the study's strategies" in capsys.readouterr().err
+    assert not (run_dir / "questionnaire.csv").exists()
+    monkeypatch.setattr(q, "ask", lambda p, s: {f"q{i}": 5 for i in range(1, 11)})
+    assert cli(["questionnaire", str(run_dir), "--participant", "2", "--strategy", "learning"]) == 0
+    assert q.read_responses(run_dir / "questionnaire.csv")["participant"].tolist() == [2]
+    with pytest.raises(QuestionnaireError, match="participants 1-4, got 5"):
+        q.append_response(
+            run_dir / "questionnaire.csv", 5, "learning", {f"q{i}": 5 for i in range(1, 11)}, study=FOUR
+        )
+
+
+def test_append_after_a_file_without_final_newline(tmp_path: Path) -> None:
+    """A file saved by an editor without its last newline: the next answer starts a new line."""
+    path = tmp_path / "answers.csv"
+    path.write_text(HEADER + "\n1,impedance,1,7,2,6,7,1,3,5,2,6")
+    q.append_response(path, 1, "learning", {f"q{i}": 3 for i in range(1, 11)})
+    assert q.read_responses(path)[["participant", "strategy", "q1"]].values.tolist() == [
+        [1, "impedance", 1], [1, "learning", 3],
+    ]  # fmt: skip

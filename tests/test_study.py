@@ -5,6 +5,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -31,10 +37,15 @@ from phri.study import (
 )
 from phri.study.cli import main as cli
 from phri.study.parallel import THREAD_ENV, ProcessBackend
-from phri.study.report import write_report
+from phri.study.report import _pooled_form, write_report
 
-#: A study small enough for CI: 2 participants × 2 strategies × 2 tasks × 2 attempts = 16 episodes of 2 s.
-TINY = StudyConfig(participants=2, attempts=2, seed=7, tasks=("human", "laptop"), duration=2.0, waypoints=5)
+#: A study small enough for CI: 2 participants × 2 strategies × 2 tasks × 2 attempts = 16 episodes of 8 s
+#: (the shortest duration, with some margin, at which the human task's goal is reachable within the
+#: planner's joint speeds: shorter is a PlanningError).
+TINY = StudyConfig(participants=2, attempts=2, seed=7, tasks=("human", "laptop"), duration=8.0, waypoints=5)
+#: TINY as `phri study` options.
+TINY_ARGS = ["--participants", "2", "--attempts", "2", "--seed", "7", "--tasks", "human,laptop",
+             "--duration", "8", "--waypoints", "5"]  # fmt: skip
 
 
 def table_without_wall_time(run_dir: Path) -> pd.DataFrame:
@@ -48,6 +59,12 @@ def snapshot(folder: Path) -> dict[str, str]:
         for p in sorted(folder.rglob("*"))
         if p.is_file()
     }
+
+
+def copy_study(reference: Path, to: Path) -> Path:
+    """A copy of the reference study folder that a test may change."""
+    shutil.copytree(reference, to, ignore=shutil.ignore_patterns("report*"))
+    return to
 
 
 @pytest.fixture(scope="module")
@@ -189,7 +206,7 @@ def test_folder_holds_table_logs_and_manifest(reference: Path) -> None:
     for log in table["log"]:
         with np.load(reference / log) as data:
             assert data["q"].shape[1] == 7 and data["desired"].shape == (5, 7)
-            assert len(data["t"]) == pytest.approx(201, abs=1)  # 2 s at 100 Hz
+            assert len(data["t"]) == pytest.approx(801, abs=1)  # 8 s at 100 Hz
     assert (table["effort"] >= 0).all() and (table["interaction_time"] >= 0).all()
 
 
@@ -320,6 +337,55 @@ def test_bad_execution_arguments(tmp_path: Path) -> None:
         run_study(tmp_path / "b", TINY, max_episodes=-1, progress=False)
 
 
+@pytest.mark.parametrize("workers", [0, -1, 1.5])
+def test_workers_must_be_at_least_one(tmp_path: Path, capsys: pytest.CaptureFixture[str], workers) -> None:  # noqa: ANN001
+    """0 is not "all CPUs" (leave --workers out for that), and nothing is created for a bad value."""
+    for backend in ("serial", "process"):
+        with pytest.raises(InvalidParameterError, match=rf"workers must be an integer >= 1.*got {workers}"):
+            run_study(tmp_path / "s", TINY, backend=backend, workers=workers, progress=False)
+        assert not (tmp_path / "s").exists()
+    if isinstance(workers, int):
+        assert (
+            cli(["study", str(tmp_path / "s"), *TINY_ARGS, "--workers", str(workers), "--no-progress"]) == 2
+        )
+        assert f"workers must be an integer >= 1 (leave it out for the CPUs available), got {workers}" in (
+            capsys.readouterr().err
+        )
+        assert not (tmp_path / "s").exists()
+        with pytest.raises(InvalidParameterError, match="workers must be >= 1"):
+            ProcessBackend(TINY, workers=workers)
+
+
+def test_another_phri_version_is_refused_unless_allowed(
+    reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from phri import __version__
+
+    run_dir = copy_study(reference, tmp_path / "s")
+    manifest = json.loads((run_dir / "study.json").read_text())
+    (run_dir / "study.json").write_text(json.dumps({**manifest, "phri_version": "0.0.1"}, indent=2) + "\n")
+    before = snapshot(run_dir)
+    with pytest.raises(
+        StudyMismatchError, match=rf"started with phri 0\.0\.1, this is phri {__version__}"
+    ) as info:
+        run_study(run_dir, progress=False, backend="serial")
+    assert "new folder" in str(info.value) and "allow-version-change" in str(info.value)
+    assert cli(["study", str(run_dir), "--no-progress", "--backend", "serial"]) == 2
+    assert "started with phri 0.0.1" in capsys.readouterr().err
+    assert snapshot(run_dir) == before
+    # Allowed: resumes, and the manifest keeps both versions (the report says the table is mixed).
+    assert cli(["study", str(run_dir), "--no-progress", "--backend", "serial", "--allow-version-change"]) == 0
+    assert "16 of 16 episodes" in capsys.readouterr().out
+    resumed = json.loads((run_dir / "study.json").read_text())
+    assert resumed["phri_version"] == "0.0.1" and resumed["resumed_with"] == [__version__]
+    assert {k: v for k, v in resumed.items() if k != "resumed_with"} == {**manifest, "phri_version": "0.0.1"}
+    # The same version as the folder's: no flag needed, nothing rewritten.
+    manifest_bytes = (run_dir / "study.json").read_bytes()
+    assert run_study(reference, progress=False, backend="serial").complete
+    run_study(run_dir, progress=False, backend="serial", allow_version_change=True)
+    assert (run_dir / "study.json").read_bytes() == manifest_bytes
+
+
 def test_questionnaire_between_strategies(tmp_path: Path) -> None:
     calls: list[tuple[int, str]] = []
     run_study(
@@ -332,6 +398,53 @@ def test_questionnaire_between_strategies(tmp_path: Path) -> None:
     assert calls == [(1, "impedance"), (1, "learning"), (2, "learning"), (2, "impedance")]
     with pytest.raises(InvalidParameterError, match="serial"):
         run_study(tmp_path / "t", TINY, backend="process", between_strategies=lambda p, s: None)
+
+
+def test_ask_on_resume_asks_lost_questionnaires(tmp_path: Path) -> None:
+    """A block finished in an earlier call whose questionnaire was never answered is asked first."""
+    run_dir = tmp_path / "s"
+    run_study(run_dir, TINY, backend="serial", progress=False, max_episodes=6)  # (1, impedance) done
+    calls: list[tuple[int, str]] = []
+    answered = {(2, "learning")}
+    kwargs = {"backend": "serial", "progress": False, "answered": lambda p, s: (p, s) in answered}
+    run_study(run_dir, between_strategies=lambda p, s: calls.append((p, s)), max_episodes=0, **kwargs)
+    assert calls == [(1, "impedance")]
+    answered.add((1, "impedance"))
+    run_study(run_dir, between_strategies=lambda p, s: calls.append((p, s)), **kwargs)
+    # (1, learning) and (2, impedance) finished now; (2, learning) was answered.
+    assert calls == [(1, "impedance"), (1, "learning"), (2, "impedance")]
+    # Once complete, every block without answers is asked again, in session order.
+    calls.clear()
+    run_study(run_dir, between_strategies=lambda p, s: calls.append((p, s)), **kwargs)
+    assert calls == [(1, "learning"), (2, "impedance")]
+
+
+def test_cli_ask_on_resume(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from phri.study import questionnaire as q
+
+    run_dir = tmp_path / "s"
+    asked: list[tuple[int, str]] = []
+
+    def ask(participant: int, strategy: str) -> dict[str, int]:
+        asked.append((participant, strategy))
+        return {c: 4 for c in q.ITEM_COLUMNS}
+
+    monkeypatch.setattr(q, "ask", ask)
+    assert (
+        cli(
+            ["study", str(run_dir), *TINY_ARGS, "--backend", "serial", "--no-progress", "--max-episodes", "5"]
+        )
+        == 0
+    )
+    assert asked == [] and not (run_dir / "questionnaire.csv").exists()
+    # Interrupted during the questionnaire of (1, impedance): resuming with --ask asks it.
+    assert cli(["study", str(run_dir), "--ask", "--no-progress", "--max-episodes", "0"]) == 0
+    assert asked == [(1, "impedance")]
+    assert q.read_responses(run_dir / "questionnaire.csv")[["participant", "strategy"]].values.tolist() == [
+        [1, "impedance"]
+    ]
+    assert cli(["study", str(run_dir), "--ask", "--no-progress", "--max-episodes", "0"]) == 0
+    assert asked == [(1, "impedance")]  # answered now: not asked again
 
 
 # -- backends ---------------------------------------------------------------------------------------
@@ -350,6 +463,80 @@ def test_process_pool_gives_the_same_table(reference: Path, tmp_path: Path) -> N
     pd.testing.assert_frame_equal(
         table_without_wall_time(tmp_path / "mixed"), table_without_wall_time(reference)
     )
+
+
+def _process_table() -> dict[int, tuple[int, str, str]]:
+    """pid -> (parent pid, state, start time) of every process, from /proc."""
+    table = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue  # ended meanwhile
+            fields = stat[stat.rindex(")") + 2 :].split()
+            table[int(entry.name)] = (int(fields[1]), fields[0], fields[19])
+    return table
+
+
+def _descendants(pid: int) -> dict[int, str]:
+    """pid -> start time of every process below `pid`."""
+    table, found, todo = _process_table(), {}, [pid]
+    while todo:
+        parent = todo.pop()
+        for child, (ppid, _, start) in table.items():
+            if ppid == parent and child not in found:
+                found[child] = start
+                todo.append(child)
+    return found
+
+
+def _alive(processes: dict[int, str]) -> list[int]:
+    """Those of `processes` still running (a zombie or a reused pid does not count)."""
+    table = _process_table()
+    return [p for p, start in processes.items() if p in table and table[p][1] != "Z" and table[p][2] == start]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the workers through /proc (Linux)")
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
+def test_killed_study_leaves_no_workers_and_resumes(reference: Path, tmp_path: Path, sig: int) -> None:
+    """`phri study --backend process` killed after its first row: its pool workers end within seconds
+    (SIGKILL: they notice their parent is gone; SIGTERM: the study shuts its pool down as after
+    Ctrl-C), and resuming gives the table of an uninterrupted run."""
+    run_dir = tmp_path / "s"
+    command = [sys.executable, "-m", "phri.study", "study", str(run_dir), *TINY_ARGS,
+               "--backend", "process", "--workers", "2", "--no-progress"]  # fmt: skip
+    with open(tmp_path / "stderr.txt", "w") as stderr:
+        study = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=stderr)
+    workers: dict[int, str] = {}
+    try:
+        results, deadline = run_dir / "results.csv", time.monotonic() + 120
+        while not (results.exists() and results.read_text().count("\n") >= 2):
+            assert study.poll() is None, (tmp_path / "stderr.txt").read_text()
+            assert time.monotonic() < deadline, "no episode recorded in 120 s"
+            time.sleep(0.02)
+        workers = _descendants(study.pid)
+        assert len(workers) >= 2  # the pool's two workers (and multiprocessing's resource tracker)
+        os.kill(study.pid, sig)
+        code = study.wait(timeout=60)
+        deadline = time.monotonic() + 10
+        while _alive(workers) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _alive(workers) == [], "pool workers outlived the killed study"
+    finally:
+        study.kill()
+        for pid in _alive(workers):
+            os.kill(pid, signal.SIGKILL)
+    if sig == signal.SIGTERM:
+        assert code == 143
+        assert "terminated (SIGTERM); every finished episode is kept" in (tmp_path / "stderr.txt").read_text()
+    else:
+        assert code == -signal.SIGKILL
+    assert 1 <= len(load_results(run_dir)) < 16
+    run = run_study(run_dir, progress=False, backend="serial")
+    assert run.complete and run.resumed >= 1
+    pd.testing.assert_frame_equal(table_without_wall_time(run_dir), table_without_wall_time(reference))
 
 
 @pytest.mark.slow
@@ -458,6 +645,37 @@ def test_rm_anova_leaves_out_incomplete_participants_and_degenerate_cases() -> N
     assert analysis.rm_anova(data[data["strategy"] == "learning"], "y", within=("strategy",)).empty
 
 
+def test_rm_anova_averages_only_tasks_present_in_every_cell() -> None:
+    """A participant without task B under one strategy: B (much harder) is left out of all of that
+    participant's cells, so it does not pass for a strategy effect."""
+    rng = np.random.default_rng(6)
+    rows = []
+    for p in range(1, 7):
+        for s in ("impedance", "learning"):
+            for task, offset in (("A", 0.0), ("B", 50.0)):
+                for a in (1, 2):
+                    y = offset + (1.0 if s == "impedance" else 0.0) + rng.normal()
+                    rows.append({"participant": p, "strategy": s, "task": task, "attempt": a, "y": y})
+    data = pd.DataFrame(rows)
+    gap = data[~((data["participant"] == 1) & (data["strategy"] == "learning") & (data["task"] == "B"))]
+    kept, dropped = analysis.matched_tasks(gap)
+    assert dropped.values.tolist() == [[1, "B"]]
+    assert len(kept) == len(gap) - 2 and not ((kept["participant"] == 1) & (kept["task"] == "B")).any()
+    out = analysis.rm_anova(gap, "y").set_index("effect")
+    by_hand = analysis.rm_anova(kept, "y").set_index("effect")
+    pd.testing.assert_frame_equal(out, by_hand)
+    assert out.loc["strategy", "df2"] == 5  # participant 1 stays in, on task A
+    # Averaging whatever tasks exist would make participant 1's impedance 25 units worse.
+    from statsmodels.stats.anova import AnovaRM
+
+    naive = gap.groupby(["participant", "strategy", "attempt"])["y"].mean().reset_index()
+    naive_f = AnovaRM(naive, "y", "participant", within=["strategy", "attempt"]).fit().anova_table
+    assert naive_f.loc["strategy", "F Value"] != pytest.approx(out.loc["strategy", "F"], rel=1e-3)
+    # Without a task column (the questionnaire's scores) nothing changes.
+    plain = _two_by_two(np.random.default_rng(3), 8)
+    assert analysis.matched_tasks(plain)[0] is plain
+
+
 def test_descriptives_and_cost_error(reference: Path) -> None:
     data = analysis.prepare(load_results(reference))
     assert np.allclose(data["cost_error"], (data["cost"] - data["desired_cost"]).abs())
@@ -502,10 +720,100 @@ def test_report(reference: Path, tmp_path: Path) -> None:
     for name in ("descriptives.csv", "anova_pooled.csv", "anova_rm.csv", "anova_by_task.csv", "table1.csv"):
         assert (tmp_path / "report" / name).is_file()
     pooled = pd.read_csv(tmp_path / "report" / "anova_pooled.csv")
-    # TINY's experimental trials: 2 participants × 1 task × 2 strategies × 2 attempts = 8 → F(1, 4).
+    # TINY's experimental trials: 2 participants × 1 task × 2 strategies × 2 attempts = 8 → F(1, 4),
+    # and the report says so rather than claiming the paper's form.
     assert set(pooled["df2"]) == {4.0}
+    assert "Here it has the form F(1, 4)" in text and "paper's F(1, 116) form" not in text
     with pytest.raises(StudyFileError, match="no study.json"):
         write_report(tmp_path / "nothing")
+
+
+def test_pooled_form_names_what_was_computed() -> None:
+    paper = analysis.factorial_anova(_two_by_two(np.random.default_rng(2), 30), "y")
+    assert "Here it has the paper's F(1, 116) form" in _pooled_form(paper)
+    small = _pooled_form(analysis.factorial_anova(_two_by_two(np.random.default_rng(2), 6), "y"))
+    assert "Here it has the form F(1, 20);" in small and "paper's F(1, 116) form" not in small
+    three = _two_by_two(np.random.default_rng(2), 6)
+    three = pd.concat([three, three[three["attempt"] == 1].assign(attempt=3)], ignore_index=True)
+    assert "F(1, 30) and F(2, 30)" in _pooled_form(analysis.factorial_anova(three, "y"))
+    assert "No F test" in _pooled_form(pd.DataFrame(columns=analysis.ANOVA_COLUMNS))
+
+
+@pytest.mark.slow
+def test_report_never_overwrites_and_fails_cleanly(
+    reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from phri.study.errors import QuestionnaireError
+
+    run_dir = copy_study(reference, tmp_path / "s")
+    first = write_report(run_dir)
+    assert first == run_dir / "report" / "report.md"
+    first.write_text("my notes on the report\n")  # edited by hand
+    kept = snapshot(run_dir / "report")
+    assert cli(["report", str(run_dir), "--participant", "2"]) == 0
+    out = capsys.readouterr().out
+    assert f"{run_dir / 'report'} exists and was left as it is" in out
+    assert f"report: {run_dir / 'report-2' / 'report.md'}" in out
+    assert snapshot(run_dir / "report") == kept
+    assert "Participant 2, task 'laptop'" in (run_dir / "report-2" / "report.md").read_text()
+    assert (run_dir / "report-2").stat().st_mode & 0o777 == (run_dir / "logs").stat().st_mode & 0o777
+    # An explicit --out that exists: OUT-2; an empty one is used as it is.
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    assert write_report(run_dir, mine) == tmp_path / "mine-2" / "report.md"
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+    (tmp_path / "empty").mkdir()
+    assert write_report(run_dir, tmp_path / "empty") == tmp_path / "empty" / "report.md"
+    # A failing report (a broken questionnaire file, read after the figures are drawn) leaves nothing.
+    bad = tmp_path / "bad.csv"
+    bad.write_text(
+        "participant,strategy," + ",".join(f"q{i}" for i in range(1, 11)) + "\n1,learning" + ",9" * 10
+    )
+    listing = sorted(p.name for p in run_dir.iterdir())
+    with pytest.raises(QuestionnaireError, match="must be 1-7"):
+        write_report(run_dir, questionnaire=bad)
+    assert sorted(p.name for p in run_dir.iterdir()) == listing
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["s", "mine", "mine-2", "empty", "bad.csv"])
+
+
+def test_report_sample_must_be_in_the_study(
+    reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run_dir = copy_study(reference, tmp_path / "s")
+    before = snapshot(run_dir)
+    for kwargs, match in [
+        (
+            {"participant": 99},
+            r"participant \(--participant\) must be one of the study's participants 1-2, got 99",
+        ),
+        ({"participant": 0}, r"participants 1-2, got 0"),
+        (
+            {"task": "coffee"},
+            r"task \(--task\) must be one of the study's tasks \['human', 'laptop'\], got 'coffee'",
+        ),
+    ]:
+        with pytest.raises(StudyConfigError, match=match):
+            write_report(run_dir, **kwargs)
+    assert cli(["report", str(run_dir), "--participant", "99"]) == 2
+    assert "must be one of the study's participants 1-2, got 99" in capsys.readouterr().err
+    assert snapshot(run_dir) == before
+
+
+@pytest.mark.slow
+def test_report_says_which_tasks_and_versions_were_mixed(reference: Path, tmp_path: Path) -> None:
+    run_dir = copy_study(reference, tmp_path / "s")
+    lines = (run_dir / "results.csv").read_text().splitlines(keepends=True)
+    gone = [n for n, line in enumerate(lines) if line.startswith("2,learning,") and ",laptop,2," in line]
+    assert len(gone) == 1
+    (run_dir / "results.csv").write_text("".join(lines[: gone[0]] + lines[gone[0] + 1 :]))
+    manifest = json.loads((run_dir / "study.json").read_text())
+    (run_dir / "study.json").write_text(json.dumps({**manifest, "resumed_with": ["9.9.9"]}))
+    text = write_report(run_dir).read_text()
+    assert "participant 2: 'laptop' (so the participant is left out entirely)" in text
+    assert f"started with phri {manifest['phri_version']}, resumed with phri 9.9.9" in text
+    complete = write_report(copy_study(reference, tmp_path / "t")).read_text()
+    assert "left out for this reason" not in complete and "Mixed versions" not in complete
 
 
 def test_report_of_a_study_without_episodes(tmp_path: Path) -> None:
@@ -531,7 +839,7 @@ def test_cli_errors_are_clear(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 @pytest.mark.slow
 def test_cli_study_resume_and_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run_dir = str(tmp_path / "s")
-    common = ["--participants", "2", "--attempts", "1", "--tasks", "human,laptop", "--duration", "1.5",
+    common = ["--participants", "2", "--attempts", "1", "--tasks", "human,laptop", "--duration", "8",
               "--waypoints", "4", "--backend", "serial", "--no-progress"]  # fmt: skip
     assert cli(["study", run_dir, *common, "--max-episodes", "3"]) == 0
     assert "3 of 8 episodes" in capsys.readouterr().out

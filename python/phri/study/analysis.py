@@ -11,7 +11,9 @@ feature's value from that of the optimal trajectory).
   F(1, 116) form. It ignores that trials of one participant are correlated.
 - :func:`rm_anova`: the repeated-measures version (statsmodels ``AnovaRM``) with participant as the
   subject and strategy × attempt within; each participant's trials are averaged over the tasks first,
-  so it has F(1, P − 1) form.
+  so it has F(1, P − 1) form. Only the tasks a participant has in every strategy × attempt cell are
+  averaged (:func:`matched_tasks`): a task missing for one strategy would otherwise pass for a
+  strategy effect.
 - :func:`task_tests`: that repeated-measures ANOVA per task (the asterisks of Fig. 4 and 5).
 
 Effect sizes are partial η² = SS_effect / (SS_effect + SS_error); for the repeated-measures ANOVA,
@@ -30,6 +32,7 @@ __all__ = [
     "MEASURES",
     "descriptives",
     "factorial_anova",
+    "matched_tasks",
     "prepare",
     "rm_anova",
     "task_tests",
@@ -102,20 +105,47 @@ def factorial_anova(
     return pd.DataFrame(rows, columns=ANOVA_COLUMNS)
 
 
+def matched_tasks(
+    data: pd.DataFrame,
+    within: Sequence[str] = ("strategy", "attempt"),
+    subject: str = "participant",
+    over: str = "task",
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The rows of `data` whose `over` level (task) the subject has in every cell of the factors
+    `within` (those with two levels or more), and the (subject, task) pairs left out.
+
+    Averaging a subject's cells over tasks compares like with like only if every cell holds the same
+    tasks; a task missing from one cell (a failed or not yet run episode) is left out of all of that
+    subject's cells. A subject with no such task is left out entirely."""
+    used = _factors(data, within)
+    if over not in data.columns or not used or not len(data):
+        return data, pd.DataFrame(columns=[subject, over])
+    n_cells = int(np.prod([data[f].nunique() for f in used]))
+    per_pair = data.drop_duplicates([subject, over, *used]).groupby([subject, over], sort=False).size()
+    full = per_pair[per_pair == n_cells].index
+    keep = pd.MultiIndex.from_frame(data[[subject, over]]).isin(full)
+    dropped = per_pair[per_pair != n_cells].index.to_frame(index=False)
+    return data[keep], dropped.sort_values([subject]).reset_index(drop=True)
+
+
 def rm_anova(
     data: pd.DataFrame,
     measure: str,
     within: Sequence[str] = ("strategy", "attempt"),
     subject: str = "participant",
+    over: str = "task",
 ) -> pd.DataFrame:
     """Repeated-measures ANOVA (statsmodels AnovaRM) of `measure`, `subject` as the subject and the
     factors `within` (those with a single level are dropped). Each subject's observations per cell are
-    averaged first (e.g. over tasks). Subjects missing a cell (failed episodes) are left out."""
+    averaged first over the levels of `over` (tasks) that the subject has in every cell (see
+    :func:`matched_tasks`). Subjects missing a cell (failed episodes) are left out."""
     from statsmodels.stats.anova import AnovaRM
 
+    data = data[data[measure].notna()]
     used = _factors(data, within)
     if not used:
         return pd.DataFrame(columns=ANOVA_COLUMNS)
+    data, _ = matched_tasks(data, used, subject, over)
     cells = data.groupby([subject, *used], sort=True)[measure].mean().reset_index()
     n_cells = int(np.prod([cells[f].nunique() for f in used]))
     complete = cells.groupby(subject)[measure].count() == n_cells

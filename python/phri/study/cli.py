@@ -8,8 +8,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from phri.exceptions import PhriError
@@ -63,14 +66,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     x = s.add_argument_group("execution (does not change the results)")
     x.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
                    help="where episodes run (default: a local process pool)")  # fmt: skip
-    x.add_argument("--workers", type=int, help="parallel workers (default: the CPUs available)")
+    x.add_argument("--workers", type=int, help="parallel workers, >= 1 (default: the CPUs available)")
     x.add_argument(
         "--address", help="Ray cluster address, e.g. 'auto' (backend ray; default: a local instance)"
     )
     x.add_argument("--max-episodes", type=int, help="stop after this many new episodes (resume later)")
     x.add_argument("--ask", action="store_true",
                    help="ask the Table 1 questionnaire on the terminal after each participant's strategy "
-                   "(runs serially; answers go to RUN_DIR/questionnaire.csv)")  # fmt: skip
+                   "(runs serially; answers go to RUN_DIR/questionnaire.csv); on resume, first asks for "
+                   "every finished strategy that has no answers yet")  # fmt: skip
+    x.add_argument("--allow-version-change", action="store_true",
+                   help="resume a folder that another phri version started (its table then mixes "
+                   "versions; the default is to refuse)")  # fmt: skip
     x.add_argument("--no-progress", action="store_true", help="no progress bar")
     s.set_defaults(run=cmd_study)
 
@@ -79,10 +86,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="statistics, figures and a Markdown report of a study folder",
         description="Analyses RUN_DIR: mean and SD per task and strategy, the paper's factorial ANOVA and a "
         "repeated-measures ANOVA with effect sizes, Fig. 4 and 5 as PNG, Table 1 if questionnaire answers "
-        "exist. Writes RUN_DIR/report/report.md.",
+        "exist. Writes a new folder RUN_DIR/report (RUN_DIR/report-2, -3, ... if it exists: an earlier "
+        "report is never overwritten) holding report.md.",
     )
     r.add_argument("run_dir", type=Path, help="study folder written by `phri study`")
-    r.add_argument("--out", type=Path, help="output folder (default RUN_DIR/report)")
+    r.add_argument(
+        "--out", type=Path, help="output folder, made new (default RUN_DIR/report; OUT-2, ... if it exists)"
+    )
     r.add_argument(
         "--questionnaire", type=Path, help="Table 1 answers CSV (default RUN_DIR/questionnaire.csv)"
     )
@@ -97,7 +107,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="ask or import the Table 1 questionnaire",
         description="Asks the ten Likert items of the paper's Table 1 on the terminal for one participant "
         "and strategy, or imports a CSV (participant,strategy,q1..q10; raw answers 1-7), into "
-        "RUN_DIR/questionnaire.csv. Existing answers are never changed.",
+        "RUN_DIR/questionnaire.csv. Participants and strategies must be the study's (RUN_DIR/study.json); "
+        "existing answers are never changed, and an import with any invalid row adds nothing.",
     )
     q.add_argument("run_dir", type=Path, help="study folder")
     how = q.add_mutually_exclusive_group(required=True)
@@ -126,34 +137,68 @@ def _fail(command: str, error: BaseException) -> int:
     return 2
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the study is so that it unwinds as after Ctrl-C: the pool is shut
+    down and every recorded episode is kept."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: a second SIGTERM must not break the shutdown
+    raise _Terminated
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Iterator[None]:
+    """While the study runs, SIGTERM (a service manager, `kill`) unwinds it like Ctrl-C instead of
+    killing this process and leaving its pool workers behind."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set from the main thread
+        return
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def cmd_study(args: argparse.Namespace) -> int:
     from phri.study import questionnaire as q
     from phri.study.report import QUESTIONNAIRE_CSV
     from phri.study.run import run_study
 
-    between = None
+    between = answered = None
     if args.ask:
+        target = args.run_dir / QUESTIONNAIRE_CSV
 
         def between(participant: int, strategy: str) -> None:
             answers = q.ask(participant, strategy)
-            q.append_response(args.run_dir / QUESTIONNAIRE_CSV, participant, strategy, answers)
+            q.append_response(target, participant, strategy, answers)
+
+        def answered(participant: int, strategy: str) -> bool:
+            if not target.exists():
+                return False
+            r = q.read_responses(target)
+            return bool(((r["participant"] == participant) & (r["strategy"] == strategy)).any())
 
     try:
-        config = _study_config(args)
-        run = run_study(
-            args.run_dir, config, backend="serial" if args.ask else args.backend, workers=args.workers,
-            address=args.address, max_episodes=args.max_episodes, progress=not args.no_progress,
-            between_strategies=between,
-        )  # fmt: skip
+        with _sigterm_unwinds():
+            config = _study_config(args)
+            run = run_study(
+                args.run_dir, config, backend="serial" if args.ask else args.backend, workers=args.workers,
+                address=args.address, max_episodes=args.max_episodes, progress=not args.no_progress,
+                between_strategies=between, answered=answered,
+                allow_version_change=args.allow_version_change,
+            )  # fmt: skip
     except (PhriError, ImportError, FileExistsError) as e:
         return _fail("study", e)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
+        how = "terminated (SIGTERM)" if isinstance(e, _Terminated) else "interrupted"
         print(
-            f"\nphri study: interrupted; every finished episode is kept. Run `phri study {args.run_dir}` "
+            f"\nphri study: {how}; every finished episode is kept. Run `phri study {args.run_dir}` "
             "to resume.",
             file=sys.stderr,
         )
-        return 130
+        return 143 if isinstance(e, _Terminated) else 130
     minutes, seconds = divmod(run.elapsed, 60)
     print(
         f"{run.done} of {run.total} episodes recorded ({run.ran} run now with {run.workers or 0} "
@@ -179,7 +224,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         )
     except PhriError as e:
         return _fail("report", e)
-    print(f"report: {path}")
+    asked = args.out if args.out is not None else args.run_dir / "report"
+    if path.parent != asked:
+        print(f"{asked} exists and was left as it is; wrote a new folder")
+    print(f"report: {path} (figures and tables in {path.parent})")
     return 0
 
 
@@ -187,19 +235,31 @@ def cmd_questionnaire(args: argparse.Namespace) -> int:
     from phri.study import questionnaire as q
     from phri.study.errors import QuestionnaireError
     from phri.study.report import QUESTIONNAIRE_CSV
+    from phri.study.results import read_manifest
 
     target = args.run_dir / QUESTIONNAIRE_CSV
     try:
         if not args.run_dir.is_dir():
             raise QuestionnaireError(f"{args.run_dir}: no such study folder")
+        found = read_manifest(args.run_dir)
+        if found is None:
+            raise QuestionnaireError(
+                f"{args.run_dir}: no study.json; answers are checked against the study's participants and "
+                f"strategies (run `phri study {args.run_dir}` first)"
+            )
+        study, _ = found
         if args.import_csv is not None:
-            added = q.import_responses(args.import_csv, target)
+            added = q.import_responses(args.import_csv, target, study=study)
             print(f"{added} questionnaire(s) added to {target}")
         else:
             if not args.strategy:
                 raise QuestionnaireError("questionnaire: --participant needs --strategy")
+            # Before the ten items are asked: a wrong participant or strategy wastes no one's time.
+            q.check_in_study(
+                args.participant, args.strategy, study, "questionnaire", ("--participant", "--strategy")
+            )
             answers = q.ask(args.participant, args.strategy)
-            q.append_response(target, args.participant, args.strategy, answers)
+            q.append_response(target, args.participant, args.strategy, answers, study=study)
             print(f"saved to {target}")
     except PhriError as e:
         return _fail("questionnaire", e)

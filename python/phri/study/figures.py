@@ -180,9 +180,13 @@ def plot_paths(
     import matplotlib.patches as patches
 
     if task in ("laptop", "human"):
-        cx, cy = scene.laptop_center if task == "laptop" else scene.human_center
-        top.add_patch(patches.Circle((cx, cy), scene.radius, fill=False, ls="--", color="red", lw=1))
-        top.annotate(f"{task} keep-out ({scene.radius} m)", (cx, cy - scene.radius), ha="center",
+        (cx, cy), radius = (
+            (scene.laptop_center, scene.laptop_radius)
+            if task == "laptop"
+            else (scene.human_center, scene.human_radius)
+        )
+        top.add_patch(patches.Circle((cx, cy), radius, fill=False, ls="--", color="red", lw=1))
+        top.annotate(f"{task} keep-out ({radius} m)", (cx, cy - radius), ha="center",
                      va="top", fontsize=9, color="red")  # fmt: skip
     if task == "laptop":
         lx, ly = scene.laptop_center

@@ -16,6 +16,8 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import threading
+import time
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -86,11 +88,27 @@ class SerialBackend:
 
 _RUNNER: EpisodeRunner | None = None
 
+#: How often a pool worker checks that the process that started it is still there [s].
+ORPHAN_POLL = 0.25
 
-def _init_worker(config: StudyConfig, log_width: int, env: dict[str, str]) -> None:
-    """Pool initializer: pins the thread variables (already inherited at spawn) and builds the
-    worker's runner; the World itself is made on the first episode."""
+
+def _exit_when_orphaned(parent: int, poll: float = ORPHAN_POLL) -> None:
+    """Ends this worker once `parent` is gone (its parent pid changes when it is reparented).
+
+    A killed study (SIGKILL, or SIGTERM without a handler) cannot shut its pool down; its workers
+    would block forever on the pipes that the other workers still hold open. os._exit, not
+    sys.exit: the main thread may be blocked in a write that never returns."""
+    while os.getppid() == parent:
+        time.sleep(poll)
+    os._exit(1)
+
+
+def _init_worker(config: StudyConfig, log_width: int, env: dict[str, str], parent: int) -> None:
+    """Pool initializer: starts the orphan watchdog, pins the thread variables (already inherited
+    at spawn) and builds the worker's runner; the World itself is made on the first episode."""
     global _RUNNER
+    watchdog = threading.Thread(target=_exit_when_orphaned, args=(parent,), name="phri-orphaned", daemon=True)
+    watchdog.start()
     os.environ.update(env)
     _RUNNER = EpisodeRunner(config, log_width)
 
@@ -123,10 +141,11 @@ def _environment(env: dict[str, str]) -> Iterator[None]:
 class ProcessBackend:
     """A local pool of `workers` spawned processes (concurrent.futures), each with one World.
 
-    At most two episodes per worker are queued at a time, so an interrupted study wastes little work."""
+    At most two episodes per worker are queued at a time, so an interrupted study wastes little work.
+    Each worker exits by itself when this process dies without shutting the pool down."""
 
     def __init__(self, config: StudyConfig, workers: int | None = None, log_width: int = 2) -> None:
-        self.workers = workers or default_workers()
+        self.workers = default_workers() if workers is None else workers
         if self.workers < 1:
             raise InvalidParameterError(f"workers must be >= 1, got {self.workers}")
         self.config, self.log_width = config, log_width
@@ -138,7 +157,7 @@ class ProcessBackend:
                 max_workers=self.workers,
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init_worker,
-                initargs=(self.config, self.log_width, THREAD_ENV),
+                initargs=(self.config, self.log_width, THREAD_ENV, os.getpid()),
             )
         return self._pool
 
@@ -203,7 +222,7 @@ class RayBackend:
                 "the 'ray' backend needs Ray: pip install 'phri[ray]' (or: pip install ray)"
             ) from e
         self.ray = ray
-        self.workers = workers or default_workers()
+        self.workers = default_workers() if workers is None else workers
         if self.workers < 1:
             raise InvalidParameterError(f"workers must be >= 1, got {self.workers}")
         self._started = False

@@ -23,11 +23,15 @@ import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from phri.study.errors import QuestionnaireError
+
+if TYPE_CHECKING:
+    from phri.study.protocol import StudyConfig
 
 __all__ = [
     "ITEMS",
@@ -35,6 +39,7 @@ __all__ = [
     "SCALES",
     "append_response",
     "ask",
+    "check_in_study",
     "import_responses",
     "cronbach_alpha",
     "read_responses",
@@ -101,39 +106,84 @@ def ask(
     return answers
 
 
-def append_response(path: str | Path, participant: int, strategy: str, answers: Mapping[str, int]) -> None:
+def check_in_study(
+    participant: int,
+    strategy: str,
+    study: StudyConfig,
+    where: str,
+    names: tuple[str, str] = ("column 'participant'", "column 'strategy'"),
+) -> None:
+    """Raises unless `participant` and `strategy` are among the study's: an answer for a participant
+    or strategy the study does not have would make every later report fail. `names` name the two
+    fields in the message."""
+    if not 1 <= participant <= study.participants:
+        raise QuestionnaireError(
+            f"{where}: {names[0]} must be one of the study's participants 1-{study.participants}, "
+            f"got {participant}"
+        )
+    if strategy not in study.strategies:
+        raise QuestionnaireError(
+            f"{where}: {names[1]} must be one of the study's strategies {list(study.strategies)}, "
+            f"got {strategy!r}"
+        )
+
+
+def append_response(
+    path: str | Path,
+    participant: int,
+    strategy: str,
+    answers: Mapping[str, int],
+    *,
+    study: StudyConfig | None = None,
+) -> None:
     """Appends one questionnaire to the CSV `path` (created with its header if missing). A second
-    answer for the same participant and strategy is refused; nothing written is changed."""
+    answer for the same participant and strategy is refused, and with `study` a participant or
+    strategy that is not the study's; nothing written is changed."""
     path = Path(path)
     row = {"participant": participant, "strategy": strategy, **answers}
     _validate_row(row, f"{path}: new row")
-    if path.exists():
-        existing = read_responses(path)
+    if study is not None:
+        check_in_study(participant, strategy, study, f"{path}: new row")
+    existing = read_responses(path) if path.exists() else None
+    if existing is not None:
         clash = (existing["participant"] == participant) & (existing["strategy"] == strategy)
         if clash.any():
             raise QuestionnaireError(f"{path}: participant {participant} already answered for '{strategy}'")
-        prefix = ""
-    else:
-        prefix = ",".join(COLUMNS) + "\n"
+    _append_rows(path, [row])
+
+
+def _append_rows(path: Path, rows: Sequence[Mapping[str, object]]) -> None:
+    """Adds `rows` to `path` all at once: the file is replaced by its old bytes plus the new rows (a
+    temporary file renamed into place), so a failure leaves it as it was."""
+    old = path.read_bytes() if path.exists() else (",".join(COLUMNS) + "\n").encode()
+    if old and not old.endswith(b"\n"):
+        old += b"\n"
     buffer = io.StringIO()
-    csv.writer(buffer, lineterminator="\n").writerow([row[c] for c in COLUMNS])
-    with open(path, "a", encoding="utf-8", newline="") as f:
-        f.write(prefix + buffer.getvalue())
+    writer = csv.writer(buffer, lineterminator="\n")
+    for row in rows:
+        writer.writerow([row[c] for c in COLUMNS])
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "wb") as f:
+        f.write(old + buffer.getvalue().encode("utf-8"))
         f.flush()
         os.fsync(f.fileno())
+    os.replace(tmp, path)
 
 
-def import_responses(source: str | Path, target: str | Path) -> int:
+def import_responses(source: str | Path, target: str | Path, *, study: StudyConfig | None = None) -> int:
     """Appends the questionnaires of the CSV `source` to `target`; returns how many were new. Answers
-    already in `target` are skipped if identical; a conflicting answer is an error, raised before
-    anything is written."""
+    already in `target` are skipped if identical. A conflicting answer, or with `study` a participant
+    or strategy that is not the study's, is an error raised before anything is written: the import
+    is all or nothing."""
     incoming = read_responses(source)
     target = Path(target)
     existing = read_responses(target) if target.exists() else pd.DataFrame(columns=list(COLUMNS))
     known = {(int(r["participant"]), str(r["strategy"])): r for r in existing.to_dict("records")}
     new = []
-    for n, row in enumerate(incoming.to_dict("records"), start=2):
+    for n, row in zip(incoming.attrs["lines"], incoming.to_dict("records"), strict=True):
         key = (int(row["participant"]), str(row["strategy"]))
+        if study is not None:
+            check_in_study(key[0], key[1], study, f"{source}: line {n}")
         if key in known:
             if any(int(known[key][c]) != int(row[c]) for c in ITEM_COLUMNS):
                 raise QuestionnaireError(
@@ -142,10 +192,8 @@ def import_responses(source: str | Path, target: str | Path) -> int:
                 )
             continue
         new.append(row)
-    for row in new:
-        append_response(
-            target, int(row["participant"]), str(row["strategy"]), {c: int(row[c]) for c in ITEM_COLUMNS}
-        )
+    if new:
+        _append_rows(target, new)
     return len(new)
 
 
@@ -165,6 +213,8 @@ def _validate_row(row: Mapping[str, object], where: str) -> dict[str, object]:
             raise QuestionnaireError(
                 f"{where}: column '{column}' must be a whole number, got {value!r}"
             ) from None
+        if column == "participant" and number < 1:
+            raise QuestionnaireError(f"{where}: column 'participant' must be >= 1 (1-based), got {number}")
         if column != "participant" and number not in LIKERT:
             raise QuestionnaireError(f"{where}: column '{column}' must be 1-7 (7-point Likert), got {number}")
         out[column] = number
@@ -183,17 +233,22 @@ def read_responses(path: str | Path) -> pd.DataFrame:
     missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
     if missing:
         raise QuestionnaireError(f"{path}: line 1: missing column(s) {missing}; expected {','.join(COLUMNS)}")
-    rows, seen = [], set()
-    for n, raw in enumerate(reader, start=2):
+    rows, lines, seen = [], [], set()
+    for raw in reader:
+        n = reader.line_num  # the file's line (blank lines are skipped by the reader)
         row = _validate_row(raw, f"{path}: line {n}")
         key = (row["participant"], row["strategy"])
         if key in seen:
             raise QuestionnaireError(f"{path}: line {n}: participant {key[0]} answered twice for '{key[1]}'")
         seen.add(key)
         rows.append(row)
+        lines.append(n)
     if not rows:
         raise QuestionnaireError(f"{path}: no responses")
-    return pd.DataFrame(rows, columns=list(COLUMNS)).astype({c: np.int64 for c in COLUMNS if c != "strategy"})
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    table = table.astype({c: np.int64 for c in COLUMNS if c != "strategy"})
+    table.attrs["lines"] = lines  # each row's line in the file, for error messages
+    return table
 
 
 # -- scoring --------------------------------------------------------------------------------------

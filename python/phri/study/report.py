@@ -1,20 +1,28 @@
 """``phri report RUN_DIR``: the statistics, the figures and a Markdown report of a study folder.
 
-Writes into ``RUN_DIR/report/`` (or `out`): ``report.md``, the PNG figures, and the tables behind
-them as CSV. Everything there is derived from the study folder and is rewritten on each call; the
-study's own files are only read.
+Writes a new folder ``RUN_DIR/report/`` (or `out`): ``report.md``, the PNG figures, and the tables
+behind them as CSV. If that folder exists (an earlier report, perhaps edited by hand) it is left as
+it is and the report goes to ``report-2``, ``report-3``, ...: written once, a report is never
+overwritten. The report is written into a hidden sibling folder renamed into place when complete,
+so a failing report leaves nothing behind. The study's own files are only read.
 """
 
 from __future__ import annotations
 
+import errno
+import os
+import secrets
+import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from phri.study import analysis, figures
-from phri.study.errors import StudyFileError
+from phri.study.errors import StudyConfigError, StudyFileError
+from phri.study.protocol import StudyConfig
 from phri.study.results import load_results, read_manifest
 
 __all__ = ["QUESTIONNAIRE_CSV", "write_report"]
@@ -98,6 +106,72 @@ def _sample_logs(
     return None
 
 
+def _check_sample(config: StudyConfig, participant: int | None, task: str | None) -> None:
+    """The requested sample of the path figure must be in the study (not silently no figure)."""
+    if participant is not None and not 1 <= participant <= config.participants:
+        raise StudyConfigError(
+            f"report: participant (--participant) must be one of the study's participants "
+            f"1-{config.participants}, got {participant}"
+        )
+    if task is not None and task not in (names := config.task_names()):
+        raise StudyConfigError(
+            f"report: task (--task) must be one of the study's tasks {names}, got {task!r}"
+        )
+
+
+def _pooled_form(pooled: pd.DataFrame) -> str:
+    """The F form the pooled ANOVA actually has; the paper's only when it is F(1, 116)."""
+    forms = sorted({(float(r.df1), float(r.df2)) for r in pooled.itertuples()})
+    if not forms:
+        return "No F test could be computed from these trials yet."
+    text = " and ".join(f"F({a:g}, {b:g})" for a, b in forms)
+    if forms == [(1.0, 116.0)]:
+        return (
+            "Here it has the paper's F(1, 116) form (10 participants × 3 tasks × 2 strategies × 2 attempts)."
+        )
+    return (
+        f"Here it has the form {text}; the paper's F(1, 116) is that of 10 participants × 3 tasks × "
+        "2 strategies × 2 attempts = 120 trials."
+    )
+
+
+def _matching_note(dropped: pd.DataFrame, data: pd.DataFrame) -> str:
+    """Which participants' tasks the repeated-measures ANOVA left out, and why."""
+    if not len(dropped):
+        return ""
+    parts = []
+    for p, group in dropped.groupby("participant", sort=True):
+        left = sorted(set(data.loc[data["participant"] == p, "task"]) - set(group["task"]))
+        names = ", ".join(f"'{t}'" for t in group["task"])
+        parts.append(
+            f"participant {p}: {names}" + ("" if left else " (so the participant is left out entirely)")
+        )
+    return (
+        " Only the tasks a participant has in every strategy × attempt cell are averaged (a task missing "
+        "for one strategy would pass for a strategy effect); left out for this reason: "
+        + "; ".join(parts)
+        + "."
+    )
+
+
+def _place(staging: Path, target: Path) -> Path:
+    """Renames the finished `staging` folder to `target`, or to the first free `target-2`,
+    `target-3`, ... if it exists (an empty folder counts as free): nothing is overwritten."""
+    k = 1
+    while True:
+        candidate = target if k == 1 else target.with_name(f"{target.name}-{k}")
+        k += 1
+        if candidate.exists() and not (candidate.is_dir() and not any(candidate.iterdir())):
+            continue
+        try:
+            os.rename(staging, candidate)  # atomic; fails on a non-empty folder or a file
+        except OSError as e:
+            if e.errno in (errno.EEXIST, errno.ENOTEMPTY, errno.ENOTDIR, errno.EISDIR):
+                continue  # taken in the meantime
+            raise
+        return candidate
+
+
 def write_report(
     run_dir: str | Path,
     out: str | Path | None = None,
@@ -106,22 +180,50 @@ def write_report(
     participant: int | None = None,
     task: str | None = None,
 ) -> Path:
-    """Analyses the study in `run_dir` and writes the report; returns the path of report.md.
+    """Analyses the study in `run_dir` and writes the report into a new folder, `out` (default
+    ``RUN_DIR/report``) or, if that exists, ``OUT-2``, ``OUT-3``, ...; returns the path of report.md.
 
     `questionnaire`: a Table 1 answers CSV (default: ``RUN_DIR/questionnaire.csv`` if present).
-    `participant`, `task`: the sample shown in the path figure (default: participant 1, laptop)."""
-    from phri.study import questionnaire as q
-
+    `participant`, `task`: the sample shown in the path figure (default: participant 1, laptop); a
+    participant or task the study does not have is a :class:`StudyConfigError`."""
     run_dir = Path(run_dir)
     found = read_manifest(run_dir)
     if found is None:
         raise StudyFileError(
             f"{run_dir}: no study.json; not a phri study folder (run `phri study {run_dir}` first)"
         )
-    config, _ = found
+    config, manifest = found
+    _check_sample(config, participant, task)
+    if questionnaire is not None and not Path(questionnaire).exists():
+        raise StudyFileError(f"{questionnaire}: questionnaire file not found")
     raw = load_results(run_dir)
-    out = Path(out) if out is not None else run_dir / "report"
-    out.mkdir(parents=True, exist_ok=True)
+    target = Path(out) if out is not None else run_dir / "report"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    # Not tempfile.mkdtemp: its folder is private (0700); this one gets the usual permissions.
+    staging = target.parent / f".{target.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
+    staging.mkdir()
+    try:
+        _write(staging, run_dir, config, manifest, raw, questionnaire, participant, task)
+        final = _place(staging, target)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return final / "report.md"
+
+
+def _write(
+    out: Path,
+    run_dir: Path,
+    config: StudyConfig,
+    manifest: dict[str, Any],
+    raw: pd.DataFrame,
+    questionnaire: str | Path | None,
+    participant: int | None,
+    task: str | None,
+) -> None:
+    """Writes every file of the report into the (new, empty) folder `out`."""
+    from phri.study import questionnaire as q
+
     data = analysis.prepare(raw)
     fam = config.familiarization
     experimental = data[data["task"] != fam] if fam is not None else data
@@ -130,6 +232,7 @@ def write_report(
         [analysis.factorial_anova(experimental, m) for m in analysis.MEASURES], ignore_index=True
     )
     rm = pd.concat([analysis.rm_anova(experimental, m) for m in analysis.MEASURES], ignore_index=True)
+    _, unmatched = analysis.matched_tasks(experimental)
     by_task = analysis.task_tests(data)
     desc.to_csv(out / "descriptives.csv", index=False)
     pooled.to_csv(out / "anova_pooled.csv", index=False)
@@ -147,7 +250,13 @@ def write_report(
         f"{config.attempts} attempt(s) each, seed {config.seed}"
         + (f", duration overridden to {config.duration:g} s" if config.duration else "")
         + (f", {config.waypoints} plan waypoints" if config.waypoints else "")
-        + ".",
+        + "."
+        + (
+            f" **Mixed versions**: started with phri {manifest.get('phri_version')}, resumed with phri "
+            f"{', '.join(map(str, resumed))}."
+            if (resumed := manifest.get("resumed_with"))
+            else ""
+        ),
         "",
         f"Episodes: {n_done} of {n_total} recorded"
         + (f", {n_failed} failed (left out)" if n_failed else "")
@@ -173,15 +282,15 @@ def write_report(
         "## Factorial ANOVA over pooled trials (the paper's analysis)",
         "",
         f"Strategy × attempt as between factors over the {len(experimental)} pooled trials of the tasks "
-        f"{', '.join(exp_tasks)} (familiarization left out), statsmodels OLS with type II sums of squares. "
-        "This is the paper's F(1, 116) form for 10 participants; it treats one participant's trials as "
-        "independent.",
+        f"{', '.join(exp_tasks)} (familiarization left out), statsmodels OLS with type II sums of squares; "
+        f"it treats one participant's trials as independent. {_pooled_form(pooled)}",
         "",
         _anova_md(pooled),
         "## Repeated-measures ANOVA (participant as the subject)",
         "",
         "statsmodels `AnovaRM`, strategy × attempt within participants, each participant's trials averaged "
-        "over the experimental tasks: F(1, P − 1). Partial η² = F·df1 / (F·df1 + df2).",
+        "over the experimental tasks: F(1, P − 1). Partial η² = F·df1 / (F·df1 + df2)."
+        + _matching_note(unmatched, experimental),
         "",
         _anova_md(rm),
         "### Per task",
@@ -227,7 +336,9 @@ def write_report(
             "",
         ]
     else:
-        lines += ["_No episode logs for a sample participant with every strategy yet: no path figure._", ""]
+        who = f"participant {participant}" if participant is not None else "a sample participant"
+        where = f" in task '{task}'" if task is not None else ""
+        lines += [f"_No episode logs for {who} with every strategy{where} yet: no path figure._", ""]
 
     qpath = Path(questionnaire) if questionnaire is not None else run_dir / QUESTIONNAIRE_CSV
     lines += ["## Questionnaire (Table 1)", ""]
@@ -244,8 +355,6 @@ def write_report(
             "",
             q.table1_markdown(t1, config.strategies),
         ]
-    elif questionnaire is not None:
-        raise StudyFileError(f"{qpath}: questionnaire file not found")
     else:
         lines += [
             f"_No questionnaire answers (`{QUESTIONNAIRE_CSV}` in the study folder): simulated participants "
@@ -261,6 +370,4 @@ def write_report(
         "`results.parquet`.",
         "",
     ]
-    report = out / "report.md"
-    report.write_text("\n".join(lines), encoding="utf-8")
-    return report
+    (out / "report.md").write_text("\n".join(lines), encoding="utf-8")

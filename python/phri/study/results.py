@@ -9,9 +9,10 @@ Layout of a study folder::
     logs/*.npz          each episode's compressed log (run_episode's arrays)
 
 ``results.csv`` is the journal: an episode is done exactly when its row is there. Rerunning the same
-study on the folder skips those and runs the rest; a different study is refused
-(:class:`StudyMismatchError`) before anything is touched. Floats are written with ``repr`` and read
-back exactly, so a resumed table is bit-for-bit the table of an uninterrupted run.
+study on the folder skips those and runs the rest; a different study, or resuming with another phri
+version than the one that started it, is refused (:class:`StudyMismatchError`) before anything is
+touched. Floats are written with ``repr`` and read back exactly, so a resumed table is bit-for-bit the
+table of an uninterrupted run.
 """
 
 from __future__ import annotations
@@ -178,6 +179,21 @@ def _differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
     ]
 
 
+def _check_version(run_dir: Path, manifest: dict[str, Any], allowed: bool) -> None:
+    """Refuses to resume a study that another phri version started (unless `allowed`)."""
+    from phri import __version__
+
+    started = manifest.get("phri_version")
+    if started == __version__ or allowed:
+        return
+    was = f"phri {started}" if started else "an unknown phri version"
+    raise StudyMismatchError(
+        f"{run_dir}: this study was started with {was}, this is phri {__version__}; resuming would mix "
+        "results of two versions in one table. Run the study into a new folder (or pass "
+        "--allow-version-change / allow_version_change=True to resume anyway); nothing was changed"
+    )
+
+
 class ResultStore:
     """A study folder opened for writing (one writer at a time: an advisory lock on the folder).
 
@@ -195,12 +211,16 @@ class ResultStore:
     # -- opening ---------------------------------------------------------------------------------
 
     @classmethod
-    def open(cls, run_dir: str | Path, config: StudyConfig | None = None) -> ResultStore:
+    def open(
+        cls, run_dir: str | Path, config: StudyConfig | None = None, *, allow_version_change: bool = False
+    ) -> ResultStore:
         """Opens (or creates) the study folder `run_dir` for `config`.
 
         With `config` None the folder's own study is resumed (a folder without one gets the default
-        study). Raises :class:`StudyMismatchError` if the folder holds a different study, and
-        :class:`StudyFileError` if its files are broken or it holds results without a manifest."""
+        study). Raises :class:`StudyMismatchError` if the folder holds a different study or was started
+        with another phri version (unless `allow_version_change`: the simulator or the analysis may
+        differ, and the rows do not say which version wrote them), and :class:`StudyFileError` if its
+        files are broken or it holds results without a manifest."""
         run_dir = Path(run_dir)
         if run_dir.exists() and not run_dir.is_dir():
             raise StudyFileError(f"{run_dir}: exists and is not a folder")
@@ -232,6 +252,7 @@ class ResultStore:
                     f"{run_dir}: the task file(s) {changed} changed since this study started; "
                     "its results would mix two task definitions (nothing was changed)"
                 )
+            _check_version(run_dir, manifest, allow_version_change)
         config.load_tasks()  # every task file readable before anything is written
         run_dir.mkdir(parents=True, exist_ok=True)
         store = cls(run_dir, config, schedule(config), [])
@@ -239,6 +260,8 @@ class ResultStore:
         try:
             if existing is None:
                 store._create()
+            else:
+                store._note_version(existing[1])
             store._load()
         except BaseException:
             store.close()
@@ -285,6 +308,17 @@ class ResultStore:
         _write_atomic(self.run_dir / RESULTS_CSV, _format_header().encode())
         # The manifest last: a folder with a manifest is a complete, resumable study folder.
         _write_atomic(self.run_dir / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+
+    def _note_version(self, manifest: dict[str, Any]) -> None:
+        """Adds this phri version to the manifest's `resumed_with` if it is not the one that started
+        the study (resuming across versions was allowed): the folder keeps saying it is mixed."""
+        from phri import __version__
+
+        versions = list(manifest.get("resumed_with", []))
+        if manifest.get("phri_version") == __version__ or __version__ in versions:
+            return
+        updated = {**manifest, "resumed_with": [*versions, __version__]}
+        _write_atomic(self.run_dir / MANIFEST, (json.dumps(updated, indent=2) + "\n").encode())
 
     def _load(self) -> None:
         path = self.run_dir / RESULTS_CSV

@@ -52,6 +52,8 @@ def run_study(
     progress: bool = True,
     on_episode: Callable[[EpisodeSpec, dict[str, Any]], None] | None = None,
     between_strategies: Callable[[int, str], None] | None = None,
+    answered: Callable[[int, str], bool] | None = None,
+    allow_version_change: bool = False,
 ) -> StudyRun:
     """Runs the study `config` into `run_dir`, or resumes it: episodes already in results.csv are
     kept and skipped. With `config` None the folder's own study is resumed (or the default study is
@@ -61,16 +63,30 @@ def run_study(
     `on_episode(spec, row)` is called after each episode is recorded (raising from it stops the study,
     keeping everything recorded); `between_strategies(participant, strategy)` is called after a
     participant's last episode with a strategy (for the questionnaire: runs serially, in session order).
+    With `answered(participant, strategy)` (is that block's questionnaire in?), it is first called for
+    every block finished before this call and not answered yet (a questionnaire lost to an
+    interruption is asked on resume), and not for answered blocks.
+
+    `workers` must be >= 1 (None: the CPUs available). A folder started with another phri version is
+    refused (:class:`~phri.study.errors.StudyMismatchError`) unless `allow_version_change`.
     """
     if max_episodes is not None and max_episodes < 0:
         raise InvalidParameterError(f"max_episodes must be >= 0, got {max_episodes}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise InvalidParameterError(
+            f"workers must be an integer >= 1 (leave it out for the CPUs available), got {workers!r}"
+        )
     if between_strategies is not None and backend != "serial":
         raise InvalidParameterError("between_strategies (the questionnaire) needs backend='serial'")
     check_backend(backend)  # before the folder is touched
     began = time.perf_counter()
-    store = ResultStore.open(run_dir, config)
+    store = ResultStore.open(run_dir, config, allow_version_change=allow_version_change)
     config = store.config
     try:
+        if between_strategies is not None and answered is not None:
+            for participant, strategy in _finished_blocks(store):
+                if not answered(participant, strategy):
+                    between_strategies(participant, strategy)
         pending = store.pending()
         resumed = len(store.rows)
         if max_episodes is not None:
@@ -89,9 +105,14 @@ def run_study(
                         store.export()
                     if on_episode is not None:
                         on_episode(outcome.spec, outcome.row)
-                    if between_strategies is not None and outcome.spec.key in last_of_block:
+                    block = (outcome.spec.participant, outcome.spec.strategy)
+                    if (
+                        between_strategies is not None
+                        and outcome.spec.key in last_of_block
+                        and (answered is None or not answered(*block))
+                    ):
                         bar.clear()
-                        between_strategies(outcome.spec.participant, outcome.spec.strategy)
+                        between_strategies(*block)
             finally:
                 bar.close()
                 runner.close()
@@ -104,6 +125,13 @@ def run_study(
         )  # fmt: skip
     finally:
         store.close()
+
+
+def _finished_blocks(store: ResultStore) -> list[tuple[int, str]]:
+    """The (participant, strategy) blocks whose every episode has its row, in session order."""
+    missing = {(s.participant, s.strategy) for s in store.pending()}
+    blocks = dict.fromkeys((s.participant, s.strategy) for s in store.specs)
+    return [b for b in blocks if b not in missing]
 
 
 def _block_ends(specs: list[EpisodeSpec]) -> set[tuple[int, str, str, int]]:

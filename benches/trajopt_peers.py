@@ -72,7 +72,8 @@ class Problem:
     max_step: np.ndarray
     laptop_center: tuple[float, float]
     human_center: tuple[float, float]
-    radius: float
+    laptop_radius: float
+    human_radius: float
     samples: int
     lower: np.ndarray
     upper: np.ndarray
@@ -97,7 +98,8 @@ def study_problem(name: str, waypoints: int | None = None, weights: np.ndarray |
         max_step=VELOCITY_MARGIN * robot.velocity_limits * spacing,
         laptop_center=s.laptop_center,
         human_center=s.human_center,
-        radius=s.radius,
+        laptop_radius=s.laptop_radius,
+        human_radius=s.human_radius,
         samples=s.samples,
         lower=robot.lower_limits,
         upper=robot.upper_limits,
@@ -109,7 +111,7 @@ def phri_optimizer(problem: Problem, **kwargs) -> phri.TrajectoryOptimizer:
     robot = phri.Robot.jaco2()
     features = phri.Features(
         robot, list(problem.names), laptop_center=problem.laptop_center, human_center=problem.human_center,
-        radius=problem.radius, samples=problem.samples,
+        laptop_radius=problem.laptop_radius, human_radius=problem.human_radius, samples=problem.samples,
     )  # fmt: skip
     return phri.TrajectoryOptimizer(
         features, problem.waypoints, clearance=list(problem.clearance), clearance_weight=CLEARANCE_WEIGHT,
@@ -239,14 +241,15 @@ class ReferenceObjective:
                     grad[1:] += w * (da[:, None] * dx[:, 0, :] + db[:, None] * dx[:, 1, :])
                 continue
             center = np.asarray(p.laptop_center if name == "laptop" else p.human_center)
+            radius = p.laptop_radius if name == "laptop" else p.human_radius
             for k in range(1, p.samples + 1):
                 s = k / p.samples
                 q = xi[1:] if k == p.samples else xi[:-1] + s * seg
                 pos, _, jac = self.kin(LINK_7, q)
                 dvec = pos[:, :2] - center
                 dist = np.linalg.norm(dvec, axis=1)
-                inside = dist < p.radius
-                value, slope = smooth_hinge(np.where(inside, p.radius - dist, 0.0), d)
+                inside = dist < radius
+                value, slope = smooth_hinge(np.where(inside, radius - dist, 0.0), d)
                 cost += w * float(np.sum(value))
                 u = dvec / np.where(dist > 0.0, dist, 1.0)[:, None]
                 g = -(u[:, 0, None] * jac[:, 0, :] + u[:, 1, None] * jac[:, 1, :]) * (w * slope)[:, None]

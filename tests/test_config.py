@@ -125,10 +125,10 @@ def _shipped_text(name: str) -> str:
             "duration, waypoints, task_feature, features, scene; did you mean 'duration'?",
         ),
         (
-            "radius = 0.4",
-            "raduis = 0.4",
-            "unknown key 'scene.raduis' in table [scene]; allowed keys: table_height, laptop_center, "
-            "human_center, radius, samples; did you mean 'radius'?",
+            "human_radius = 0.4",
+            "human_raduis = 0.4",
+            "unknown key 'scene.human_raduis' in table [scene]; allowed keys: table_height, laptop_center, "
+            "human_center, laptop_radius, human_radius, samples; did you mean 'human_radius'?",
         ),
         (
             "[features.table]",
@@ -167,7 +167,11 @@ def test_an_unknown_key_with_no_close_match_lists_the_allowed_keys_only(tmp_path
         ),
         ("lower = 0.0", "lower = -inf", "key 'features.table.lower' must be a finite number, got -inf"),
         ("table_height = -0.1016", "table_height = -inf", "key 'scene.table_height' must be a finite number"),
-        ("radius = 0.4", "radius = inf", "key 'scene.radius' must be a finite number, got inf"),
+        (
+            "laptop_radius = 0.4",
+            "laptop_radius = inf",
+            "key 'scene.laptop_radius' must be a finite number, got inf",
+        ),
         ("duration = 15.0", "duration = 1" + "0" * 400, "key 'duration' must be a finite number"),
         ("start = [104.2,", "start = [1" + "0" * 400 + ",", "key 'start' must be a list of 7 finite numbers"),
         ("[-0.7929, -0.1]", "[-0.7929, inf]", "key 'scene.laptop_center' must be a list of 2 finite numbers"),
@@ -319,7 +323,8 @@ def test_shipped_tasks_spell_out_the_default_scene(name, robot) -> None:
     s = task.scene
     names = list(KNOWN_FEATURES)
     from_task = phri.Features(
-        robot, names, laptop_center=s.laptop_center, human_center=s.human_center, radius=s.radius,
+        robot, names, laptop_center=s.laptop_center, human_center=s.human_center,
+        laptop_radius=s.laptop_radius, human_radius=s.human_radius,
         samples=s.samples,
     )  # fmt: skip
     xi = np.linspace(task.start, task.goal, task.waypoints)
@@ -327,10 +332,11 @@ def test_shipped_tasks_spell_out_the_default_scene(name, robot) -> None:
 
 
 def test_scene_values_are_read_from_the_file(tmp_path) -> None:
-    path = _variant(tmp_path, "radius = 0.4 ", "radius = 0.3 ")
+    path = _variant(tmp_path, "human_radius = 0.4 ", "human_radius = 0.3 ")
     path.write_text(path.read_text().replace("human_center = [0.0, 0.2]", "human_center = [0.1, 0.5]"))
     scene = phri.load_task(path).scene
-    assert (scene.radius, scene.human_center, scene.laptop_center) == (0.3, (0.1, 0.5), (-0.7929, -0.1))
+    assert (scene.human_radius, scene.laptop_radius) == (0.3, 0.4)
+    assert (scene.human_center, scene.laptop_center) == ((0.1, 0.5), (-0.7929, -0.1))
 
 
 def test_a_scene_that_is_not_a_table_is_an_error(tmp_path) -> None:

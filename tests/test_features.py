@@ -68,7 +68,8 @@ def reference_per_segment(
     table_height: float = 0.0,
     laptop: tuple[float, float] = LAPTOP,
     human: tuple[float, float] = HUMAN,
-    radius: float = 0.4,
+    laptop_radius: float = 0.4,
+    human_radius: float = 0.4,
     samples: int = 4,
 ) -> np.ndarray:
     """(N−1, K) features of each segment (q_{i-1}, q_i], in numpy."""
@@ -79,7 +80,7 @@ def reference_per_segment(
     points = xi[:-1, None, :] + s[None, :, None] * segments[:, None, :]  # (N−1, S, n)
     p_xy = robot.frame_pose(LINK_7, points.reshape(-1, 7))[:, :2, 3].reshape(len(segments), samples, 2)
 
-    def hinge(center: tuple[float, float]) -> np.ndarray:
+    def hinge(center: tuple[float, float], radius: float) -> np.ndarray:
         return np.maximum(0.0, radius - np.linalg.norm(p_xy - np.asarray(center), axis=-1)).sum(axis=1)
 
     values = {
@@ -87,8 +88,8 @@ def reference_per_segment(
         "table": end[:, 2, 3] - table_height,
         "coffee": np.abs(end[:, 0, 0]) + np.abs(end[:, 1, 0]),
         "coffee_dot": 1.0 - end[:, 2, 0],
-        "laptop": hinge(laptop),
-        "human": hinge(human),
+        "laptop": hinge(laptop, laptop_radius),
+        "human": hinge(human, human_radius),
         "origin": np.linalg.norm(end[:, :3, 3], axis=1),
     }
     return np.stack([values[name] for name in names], axis=1)
@@ -136,14 +137,18 @@ def test_waypoint_zero_counts_only_through_the_first_segment(jaco2):
 
 
 def test_scene_parameters_reach_the_features(jaco2, gen):
-    scene = dict(table_height=-0.1016, laptop=(-0.6, 0.2), human=(-0.3, -0.4), radius=0.55, samples=7)
+    scene = dict(
+        table_height=-0.1016, laptop=(-0.6, 0.2), human=(-0.3, -0.4), laptop_radius=0.55, human_radius=0.3,
+        samples=7,
+    )  # fmt: skip
     features = phri.Features(
         jaco2,
         ALL,
         table_height=scene["table_height"],
         laptop_center=scene["laptop"],
         human_center=scene["human"],
-        radius=scene["radius"],
+        laptop_radius=scene["laptop_radius"],
+        human_radius=scene["human_radius"],
         samples=scene["samples"],
     )
     for xi in [line(pose("pick_basic"), pose("place_higher"), 12), random_trajectory(jaco2, gen, 9)]:
@@ -264,8 +269,8 @@ def test_unknown_and_repeated_names_are_typed_errors(jaco2):
 @pytest.mark.parametrize(
     ("kwargs", "arg"),
     [
-        ({"radius": -0.4}, "radius"),
-        ({"radius": float("nan")}, "radius"),
+        ({"laptop_radius": -0.4}, "laptop_radius"),
+        ({"human_radius": float("nan")}, "human_radius"),
         ({"samples": 0}, "samples"),
         ({"samples": -3}, "samples"),
         ({"ranges": [1.0, 0.0]}, "ranges"),

@@ -77,7 +77,8 @@ class Features:
         table_height: float = 0.0,
         laptop_center: tuple[float, float] = (-0.7929, -0.1),
         human_center: tuple[float, float] = (0.0, 0.2),
-        radius: float = 0.4,
+        laptop_radius: float = 0.4,
+        human_radius: float = 0.4,
         samples: int = 4,
         ranges: _Array | None = None,
     ) -> Features: ...

@@ -35,7 +35,7 @@ TASK_KEYS = (
     "name", "title", "angles", "start", "goal", "duration", "waypoints", "task_feature", "features", "scene",
 )  # fmt: skip
 FEATURE_KEYS = ("initial", "true", "step", "lower", "upper", "learned")
-SCENE_KEYS = ("table_height", "laptop_center", "human_center", "radius", "samples")
+SCENE_KEYS = ("table_height", "laptop_center", "human_center", "laptop_radius", "human_radius", "samples")
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,8 @@ class Scene:
     table_height: float = -0.1016
     laptop_center: tuple[float, float] = (-0.7929, -0.1)
     human_center: tuple[float, float] = (0.0, 0.2)
-    radius: float = 0.4
+    laptop_radius: float = 0.4
+    human_radius: float = 0.4
     samples: int = 4
 
 
@@ -260,7 +261,8 @@ def _parse(data: dict[str, Any], source: str) -> Task:
         table_height=s.number("table_height", Scene.table_height),
         laptop_center=tuple(s.vector("laptop_center", 2, list(Scene.laptop_center))),  # type: ignore[arg-type]
         human_center=tuple(s.vector("human_center", 2, list(Scene.human_center))),  # type: ignore[arg-type]
-        radius=s.number("radius", Scene.radius, positive=True),
+        laptop_radius=s.number("laptop_radius", Scene.laptop_radius, positive=True),
+        human_radius=s.number("human_radius", Scene.human_radius, positive=True),
         samples=samples,
     )
     return Task(

@@ -15,18 +15,19 @@
 //! the way they push. The original code used μ = −0.01 with its arm's measured-torque sign.
 //!
 //! **Ends of the window.** Waypoints outside the window are not touched (bit for bit): the current
-//! waypoint and the one after the window keep their positions, and so do their outer neighbours, so
-//! the finite-difference velocities across both ends are unchanged. That is the zero padding of A:
-//! its rows are the second (third) differences of the window padded with two (three) unmoved
-//! waypoints on each side, so the norm sees the deformation's position and velocity (jerk: also
-//! acceleration) vanish just outside the window. Inside, the shape is a clamped beam's response to
-//! the push at the first moved waypoint: H[k] ∝ (k+1)(m−k)(m+1−k) for acceleration, a cubic that is
-//! s(1−s)² in the continuum limit (s = k/m), and H[k] ∝ (k+1)(k+2)(m−k)(m+1−k)(m+2−k) for jerk,
-//! s²(1−s)³. At the far end both return to the plan with zero velocity (jerk: and acceleration).
-//! At the push the acceleration shape starts with a finite slope: the first moved waypoint steps by
-//! μ·H[0]·u_H (0.75 of the peak for n = 5), a velocity kink where the person pushes; the jerk shape
-//! starts with zero velocity and only its acceleration jumps. Choose [`Norm::Jerk`] where the
-//! deformed trajectory must be C¹ at both ends.
+//! waypoint and everything before it, and the waypoint after the window and everything after it,
+//! keep their positions, so finite-difference velocities outside the window are unchanged. That is
+//! the zero padding of A: its rows are the second (third) differences of the window padded with two
+//! (three) unmoved waypoints on each side. Inside, the shape is a clamped beam's response to the
+//! push at the first moved waypoint: H[k] ∝ (k+1)(m−k)(m+1−k) for acceleration, the discrete form
+//! of s(1−s)² (s = k/m), and H[k] ∝ (k+1)(k+2)(m−k)(m+1−k)(m+2−k) for jerk, of s²(1−s)³. The
+//! continuum shapes start and end with zero displacement, the jerk one also with zero slope; a
+//! discrete window steps into and out of them. Relative to the peak, the first moved waypoint steps
+//! by H[0]/max H = 0.75 (acceleration) and 0.58 (jerk) for n = 5, 0.13 and 0.019 for n = 50,
+//! shrinking like 1/m and 1/m²; the last by 0.25 (both) for n = 5, 0.005 and 0.001 for n = 50,
+//! like 1/m² and 1/m³ (tests check these orders). So the original's 5-waypoint window is a visible
+//! kink at the push, and continuity at both ends is a property of long windows (at 1 kHz, a window
+//! of a second or more), best with [`Norm::Jerk`].
 //!
 //! **Normalisation.** ‖H‖ = √m for whatever window m is moved, so the root-mean-square displacement
 //! of the moved waypoints is μ·|u_H[j]| per joint whatever the window length (the peak is 1.34× that
@@ -465,6 +466,32 @@ mod tests {
         a.iter().zip(b).map(|(x, y)| ((x - y) / y).abs()).fold(0.0, f64::max)
     }
 
+    /// The steps into and out of the window, relative to the peak, at n = 5 (the numbers the module
+    /// docs quote) and their decay with the window: entry like 1/m (acceleration) and 1/m² (jerk),
+    /// exit like 1/m² and 1/m³.
+    #[test]
+    fn the_window_ends_become_continuous_as_it_lengthens() {
+        let steps = |norm: Norm, m: usize| {
+            let d = Deformation::new(DeformParams { window: m, norm, ..Default::default() }).unwrap();
+            let h = shape_of(&d, m);
+            let peak = h.iter().cloned().fold(0.0, f64::max);
+            (h[0] / peak, h[m - 1] / peak)
+        };
+        for (norm, entry5, exit5, entry_order, exit_order) in
+            [(Norm::Acceleration, 0.75, 0.25, 1, 2), (Norm::Jerk, 0.5833, 0.25, 2, 3)]
+        {
+            let (a, b) = steps(norm, 5);
+            assert!((a - entry5).abs() < 1e-4 && (b - exit5).abs() < 1e-4, "{norm:?} n = 5: {a} {b}");
+            let (a1, b1) = steps(norm, 100);
+            let (a2, b2) = steps(norm, 1000);
+            // Ten times the window: the entry step shrinks ~10^order times (within a factor 1.5).
+            let (re, rx) = (a1 / a2, b1 / b2);
+            let (ee, ex) = (10f64.powi(entry_order), 10f64.powi(exit_order));
+            assert!(re > ee / 1.5 && re < ee * 1.5, "{norm:?} entry ratio {re}");
+            assert!(rx > ex / 1.5 && rx < ex * 1.5, "{norm:?} exit ratio {rx}");
+        }
+    }
+
     #[test]
     fn bands_of_the_two_norms() {
         assert_eq!(Norm::Acceleration.band(), vec![6.0, -4.0, 1.0]);
@@ -672,7 +699,7 @@ mod tests {
         }
 
         #[test]
-        fn both_ends_of_the_window_keep_position_and_velocity((d, dof, traj, index, u, _v) in case()) {
+        fn outside_the_window_nothing_moves_and_inside_it_is_the_shape_times_the_push((d, dof, traj, index, u, _v) in case()) {
             let n_waypoints = traj.len() / dof;
             let mut deformed = traj.clone();
             let moved = d.deform_in_place(&mut deformed, dof, index, &u).unwrap();

@@ -748,15 +748,24 @@ pub struct SceneParams {
     pub laptop_center: [f64; 2],
     /// Human feature centre (x, y) [m].
     pub human_center: [f64; 2],
-    /// Keep-out radius of both [m].
-    pub radius: f64,
+    /// Keep-out radius of the laptop feature [m].
+    pub laptop_radius: f64,
+    /// Keep-out radius of the human feature [m].
+    pub human_radius: f64,
     /// Points per segment of the keep-out features.
     pub samples: usize,
 }
 
 impl Default for SceneParams {
     fn default() -> Self {
-        SceneParams { table_height: 0.0, laptop_center: [-0.7929, -0.1], human_center: [0.0, 0.2], radius: 0.4, samples: 4 }
+        SceneParams {
+            table_height: 0.0,
+            laptop_center: [-0.7929, -0.1],
+            human_center: [0.0, 0.2],
+            laptop_radius: 0.4,
+            human_radius: 0.4,
+            samples: 4,
+        }
     }
 }
 
@@ -765,8 +774,10 @@ pub const BUILTIN_FEATURES: [&str; 7] = ["efficiency", "table", "coffee", "coffe
 
 /// A built-in feature by name.
 pub fn builtin(name: &str, scene: &SceneParams) -> Result<Box<dyn Feature>> {
-    if !(scene.radius.is_finite() && scene.radius > 0.0) {
-        return Err(PhriError::invalid("radius", format!("must be a finite distance > 0 m, got {}", scene.radius)));
+    for (arg, radius) in [("laptop_radius", scene.laptop_radius), ("human_radius", scene.human_radius)] {
+        if !(radius.is_finite() && radius > 0.0) {
+            return Err(PhriError::invalid(arg, format!("must be a finite distance > 0 m, got {radius}")));
+        }
     }
     if scene.samples == 0 {
         return Err(PhriError::invalid("samples", "must be at least 1 point per segment, got 0"));
@@ -774,10 +785,10 @@ pub fn builtin(name: &str, scene: &SceneParams) -> Result<Box<dyn Feature>> {
     check_finite("table_height", &[scene.table_height])?;
     check_finite("laptop_center", &scene.laptop_center)?;
     check_finite("human_center", &scene.human_center)?;
-    let keepout = |name: &str, c: [f64; 2]| Keepout {
+    let keepout = |name: &str, c: [f64; 2], radius: f64| Keepout {
         name: name.into(),
         center: Vector2::from(c),
-        radius: scene.radius,
+        radius,
         samples: scene.samples,
     };
     Ok(match name {
@@ -785,8 +796,8 @@ pub fn builtin(name: &str, scene: &SceneParams) -> Result<Box<dyn Feature>> {
         "table" => Box::new(Table { height: scene.table_height }),
         "coffee" => Box::new(Coffee { form: CoffeeForm::Horizontal }),
         "coffee_dot" => Box::new(Coffee { form: CoffeeForm::Dot }),
-        "laptop" => Box::new(keepout("laptop", scene.laptop_center)),
-        "human" => Box::new(keepout("human", scene.human_center)),
+        "laptop" => Box::new(keepout("laptop", scene.laptop_center, scene.laptop_radius)),
+        "human" => Box::new(keepout("human", scene.human_center, scene.human_radius)),
         "origin" => Box::new(Origin),
         other => {
             return Err(PhriError::UnknownName {

@@ -33,8 +33,9 @@ fn non_negative(arg: &str, value: i64) -> PyResult<usize> {
 /// > 0 moves the trajectory the way the person pushes (the original used −0.01 with its arm's
 /// measured-torque sign). `end_rule` within `window` waypoints of the goal, which never moves:
 /// "skip" (the original) moves nothing, "shrink" moves the waypoints left with the shorter window's
-/// shape. Waypoints outside the window are untouched. The acceleration shape enters the window
-/// with a finite slope (a velocity kink at the push); the jerk shape is C¹ at both ends.
+/// shape. Waypoints outside the window are untouched. The first and last moved waypoints step by
+/// 0.75 and 0.25 of the peak for the 5-waypoint window (a kink at the push); the steps vanish as the
+/// window lengthens, fastest for "jerk" (see phri_core::deform).
 #[pyclass(name = "Deformation", module = "phri._phri", frozen)]
 pub struct PyDeformation {
     pub(crate) deformation: Deformation,

@@ -43,10 +43,11 @@ impl PyFeatures {
     #[new]
     #[pyo3(signature = (
         robot, names, frame = "j2s7s300_link_7", *, table_height = 0.0, laptop_center = (-0.7929, -0.1),
-        human_center = (0.0, 0.2), radius = 0.4, samples = 4, ranges = None
+        human_center = (0.0, 0.2), laptop_radius = 0.4, human_radius = 0.4, samples = 4, ranges = None
     ))]
     #[pyo3(text_signature = "(robot, names, frame='j2s7s300_link_7', *, table_height=0.0, \
-                             laptop_center=(-0.7929, -0.1), human_center=(0.0, 0.2), radius=0.4, samples=4, ranges=None)")]
+                             laptop_center=(-0.7929, -0.1), human_center=(0.0, 0.2), laptop_radius=0.4, human_radius=0.4, \
+                             samples=4, ranges=None)")]
     #[allow(clippy::too_many_arguments)]
     fn new(
         robot: PyRef<'_, PyRobot>,
@@ -55,7 +56,8 @@ impl PyFeatures {
         table_height: f64,
         laptop_center: (f64, f64),
         human_center: (f64, f64),
-        radius: f64,
+        laptop_radius: f64,
+        human_radius: f64,
         samples: i64,
         ranges: Option<ArrayIn<'_>>,
     ) -> PyResult<Self> {
@@ -65,7 +67,8 @@ impl PyFeatures {
             table_height,
             laptop_center: [laptop_center.0, laptop_center.1],
             human_center: [human_center.0, human_center.1],
-            radius,
+            laptop_radius,
+            human_radius,
             samples,
         };
         let model = robot.model.clone();

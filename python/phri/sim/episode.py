@@ -129,7 +129,7 @@ class Planner:
         self.task = task
         self.features = Features(
             world.model, task.feature_names, laptop_center=s.laptop_center, human_center=s.human_center,
-            radius=s.radius, samples=s.samples,
+            laptop_radius=s.laptop_radius, human_radius=s.human_radius, samples=s.samples,
         )  # fmt: skip
         clearance = [
             (HAND, s.table_height + HAND_CLEARANCE),

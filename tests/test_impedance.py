@@ -126,6 +126,87 @@ def test_eq5_renders_the_desired_impedance_through_the_arms_dynamics(jaco2, gen,
     assert checked > 50
 
 
+def saturate(robot, tau):
+    """(τ clipped to the effort limits, bitmask of the clipped joints)."""
+    limits = robot.effort_limits
+    over = np.abs(tau) > limits
+    return np.clip(tau, -limits, limits), int(sum(1 << j for j in np.flatnonzero(over)))
+
+
+def reference_eq5(robot, q, qd, q_ref, qd_ref, qdd_ref, u_h, k, b, m_r):
+    """Eq. 5 in numpy: τ = M(q)·(q̈_R + M_R⁻¹(u_H + K(q_R − q) + B(q̇_R − q̇))) + C(q, q̇)q̇ + g(q) − u_H."""
+    spring_damper = as_matrix(k) @ (q_ref - q) + as_matrix(b) @ (qd_ref - qd)
+    qdd = qdd_ref + np.linalg.solve(as_matrix(m_r), u_h + spring_damper)
+    h = robot.inverse_dynamics(q, qd, np.zeros(7))  # C(q, q̇)q̇ + g(q)
+    return saturate(robot, robot.mass_matrix(q) @ qdd + h - u_h)
+
+
+def reference_implicit(robot, q, qd, q_ref, qd_ref, dt, k, b):
+    """Stable PD in numpy: (M + BΔt) q̈ = K(q_R − q − q̇Δt) + B(q̇_R − q̇) − C(q, q̇)q̇, then
+    τ = g + K(q_R − q − q̇Δt) + B(q̇_R − q̇ − q̈Δt)."""
+    k, b = as_matrix(k), as_matrix(b)
+    g = robot.gravity(q)
+    coriolis = robot.nonlinear_effects(q, qd) - g
+    e_pred = q_ref - q - qd * dt
+    qdd = np.linalg.solve(robot.mass_matrix(q) + b * dt, k @ e_pred + b @ (qd_ref - qd) - coriolis)
+    return saturate(robot, g + k @ e_pred + b @ (qd_ref - qd - qdd * dt))
+
+
+@pytest.mark.parametrize("inertia", ["diagonal", "full"])
+@pytest.mark.parametrize("gains", ["default", "full"])
+def test_eq5_matches_numpy_reference(jaco2, gen, inertia, gains):
+    m_r = gen.uniform(0.05, 1.0, 7) if inertia == "diagonal" else random_spd(gen, 0.3)
+    if gains == "default":
+        k, b, kwargs = K_DEFAULT, B_DEFAULT, {}
+    else:
+        k, b = random_spd(gen, 60.0), random_spd(gen, 6.0)
+        kwargs = {"stiffness": k, "damping": b}
+    c = phri.ImpedanceController(jaco2, inertia=m_r, **kwargs)
+    saturated, free = 0, 0
+    for _ in range(200):
+        q = random_q(jaco2, gen)
+        qd = gen.normal(scale=0.5, size=7)
+        spread = 10 ** gen.uniform(-3.0, 0.5)  # from well inside the limits to far beyond them
+        q_ref = q + gen.normal(scale=spread, size=7)
+        qd_ref = qd + gen.normal(scale=spread, size=7)
+        qdd_ref = gen.normal(scale=10 * spread, size=7)
+        u_h = gen.normal(scale=2.0, size=7)
+        tau = c.torque_full(q, qd, q_ref, qd_ref, qdd_ref, u_h)
+        want, bits = reference_eq5(jaco2, q, qd, q_ref, qd_ref, qdd_ref, u_h, k, b, m_r)
+        np.testing.assert_allclose(tau, want, rtol=0, atol=TOL, err_msg=f"q={q.tolist()}")
+        assert c.saturated == bits, f"q={q.tolist()}"
+        saturated += bits != 0
+        free += bits == 0
+    assert saturated > 5 and free > 5, f"{saturated} saturated, {free} not: the sweep should see both"
+
+
+@pytest.mark.parametrize("gains", ["default", "diagonal", "full"])
+@pytest.mark.parametrize("dt", [1e-3, 1e-2])
+def test_torque_implicit_matches_numpy_reference(jaco2, gen, gains, dt):
+    if gains == "default":
+        k, b, kwargs = K_DEFAULT, B_DEFAULT, {}
+    elif gains == "diagonal":
+        k, b = gen.uniform(10, 300, 7), gen.uniform(1, 30, 7)
+        kwargs = {"stiffness": k, "damping": b}
+    else:
+        k, b = random_spd(gen, 60.0), random_spd(gen, 6.0)
+        kwargs = {"stiffness": k, "damping": b}
+    c = phri.ImpedanceController(jaco2, **kwargs)
+    saturated, free = 0, 0
+    for _ in range(200):
+        q = random_q(jaco2, gen)
+        qd = gen.normal(scale=0.5, size=7)
+        q_ref = q + gen.normal(scale=0.15, size=7)
+        qd_ref = gen.normal(scale=0.5, size=7)
+        tau = c.torque_implicit(q, qd, q_ref, qd_ref, dt)
+        want, bits = reference_implicit(jaco2, q, qd, q_ref, qd_ref, dt, k, b)
+        np.testing.assert_allclose(tau, want, rtol=0, atol=TOL, err_msg=f"q={q.tolist()}")
+        assert c.saturated == bits, f"q={q.tolist()}"
+        saturated += bits != 0
+        free += bits == 0
+    assert saturated > 5 and free > 5, f"{saturated} saturated, {free} not: the sweep should see both"
+
+
 def test_out_is_written_and_returned(jaco2, gen):
     c = phri.ImpedanceController(jaco2)
     q, qd = random_q(jaco2, gen), gen.normal(size=7)

@@ -286,6 +286,7 @@ class TrajectoryOptimizer:
         max_step: _Array | None = None,
         step_weight: float = 1e3,
         method: Literal["newton", "lbfgs"] = "newton",
+        kinematic_curvature: bool = False,
     ) -> TrajectoryOptimizer: ...
     @property
     def waypoints(self) -> int: ...

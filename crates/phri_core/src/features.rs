@@ -106,6 +106,8 @@ impl Pieces {
 #[derive(Debug, Clone)]
 pub struct SegmentHessian {
     n: usize,
+    /// Whether to include second derivatives of the kinematics (see [`SegmentHessian::kinematic`]).
+    kinematic: bool,
     m: Vec<f64>,
     v: Vec<f64>,
     /// Pending n × n Hessian at the point `pending`.
@@ -117,12 +119,30 @@ pub struct SegmentHessian {
 impl SegmentHessian {
     /// A zero matrix for `n` joints.
     pub fn new(n: usize) -> Self {
-        SegmentHessian { n, m: vec![0.0; 4 * n * n], v: vec![0.0; n], h: vec![0.0; n * n], pending: None, tmp: vec![0.0; n * n] }
+        SegmentHessian {
+            n,
+            kinematic: true,
+            m: vec![0.0; 4 * n * n],
+            v: vec![0.0; n],
+            h: vec![0.0; n * n],
+            pending: None,
+            tmp: vec![0.0; n * n],
+        }
     }
 
     /// Number of joints n (the matrix is 2n × 2n).
     pub fn dof(&self) -> usize {
         self.n
+    }
+
+    /// Whether the caller wants the terms with second derivatives of the kinematics (∂²p/∂q²,
+    /// ∂²R/∂q²) of features that act at every waypoint (table, coffee, origin). True for the exact
+    /// Hessian ([`FeatureSet::weighted_cost_curvature`]); the optimiser asks without them by
+    /// default (`TrajoptParams::kinematic_curvature`): they make its model indefinite along the
+    /// whole path and force heavy damping, while their Gauss–Newton part models these features
+    /// well. Keep-out features keep them near their kink, where they decide the final convergence.
+    pub fn kinematic(&self) -> bool {
+        self.kinematic
     }
 
     /// Entry (r, c), r and c in 0..2n (terms still pending are not included; see `flush`).
@@ -225,6 +245,8 @@ struct Sample {
 #[derive(Clone)]
 struct WaypointKin {
     data: RobotData,
+    /// (sin, cos) of every joint position, for the samples of the segments that meet here.
+    sin_cos: Vec<(f64, f64)>,
     point: Point,
     jacobian: Matrix6xX<f64>,
     epoch: u64,
@@ -264,12 +286,27 @@ struct Workspace {
 }
 
 impl Workspace {
-    fn fk_at(&mut self, q_prev: &[f64], q: &[f64], s: f64) {
+    /// Forward kinematics at q_{i-1} + s·(q_i − q_{i-1}) into `data`, for the segment ending at
+    /// waypoint `i` (s ∈ (0, 1)). The sines and cosines come from waypoint i−1's by the angle
+    /// addition formulas with short Taylor series for the small angle s·Δq (measured: libm's sincos
+    /// was a quarter of a keep-out feature's evaluation).
+    fn fk_at(&mut self, i: usize, q_prev: &[f64], q: &[f64], s: f64) {
         if self.data_s != Some(s) {
+            self.waypoint(i - 1, q_prev);
             for ((out, a), b) in self.q_s.iter_mut().zip(q_prev).zip(q) {
                 *out = a + s * (b - a);
             }
-            self.model.forward_kinematics_unchecked(&self.q_s, &mut self.data);
+            let (base, q_s) = (&self.waypoints[i - 1].sin_cos, &self.q_s);
+            let sin_cos = |j: usize| {
+                let d = q_s[j] - q_prev[j];
+                if d.abs() > SMALL_ANGLE {
+                    return q_s[j].sin_cos();
+                }
+                let (sd, cd) = small_sin_cos(d);
+                let (sa, ca) = base[j];
+                (sa * cd + ca * sd, ca * cd - sa * sd)
+            };
+            self.model.forward_kinematics_with(&self.q_s, sin_cos, &mut self.data);
             self.data_s = Some(s);
         }
     }
@@ -281,6 +318,7 @@ impl Workspace {
             let nq = self.model.nq();
             let blank = WaypointKin {
                 data: self.model.data(),
+                sin_cos: vec![(0.0, 1.0); nq],
                 point: Point { position: Vector3::zeros(), rotation: Matrix3::identity() },
                 jacobian: Matrix6xX::zeros(nq),
                 epoch: 0,
@@ -294,7 +332,11 @@ impl Workspace {
     fn waypoint(&mut self, i: usize, q: &[f64]) -> &mut WaypointKin {
         let w = &mut self.waypoints[i];
         if w.epoch != self.epoch {
-            self.model.forward_kinematics_unchecked(q, &mut w.data);
+            for (sc, v) in w.sin_cos.iter_mut().zip(q) {
+                *sc = v.sin_cos();
+            }
+            let sin_cos = &w.sin_cos;
+            self.model.forward_kinematics_with(q, |j| sin_cos[j], &mut w.data);
             let pose = self.model.frame_pose(self.frame, &w.data);
             w.point = Point { position: pose.translation.vector, rotation: *pose.rotation.matrix() };
             w.epoch = self.epoch;
@@ -312,6 +354,20 @@ impl Workspace {
         }
         &self.waypoints[i].jacobian
     }
+}
+
+/// Angles up to this size [rad] take [`small_sin_cos`] in [`Workspace::fk_at`].
+const SMALL_ANGLE: f64 = 0.25;
+
+/// (sin d, cos d) for |d| ≤ [`SMALL_ANGLE`] by Taylor series to d¹¹ and d¹²: the remainders are
+/// below 3·10⁻¹⁸ there, under half an ulp of the results.
+#[inline(always)]
+fn small_sin_cos(d: f64) -> (f64, f64) {
+    let x = d * d;
+    let t = |k: f64| x * (1.0 / k); // x/k as a multiplication (the reciprocals fold at compile time)
+    let s = d * (1.0 - t(6.0) * (1.0 - t(20.0) * (1.0 - t(42.0) * (1.0 - t(72.0) * (1.0 - t(110.0))))));
+    let c = 1.0 - t(2.0) * (1.0 - t(12.0) * (1.0 - t(30.0) * (1.0 - t(56.0) * (1.0 - t(90.0) * (1.0 - t(132.0))))));
+    (s, c)
 }
 
 /// Bounds on the distance from each joint's axis to `frame`'s origin, from the chain's link offsets
@@ -338,7 +394,7 @@ impl Segment<'_> {
             return i;
         }
         let (q_prev, q) = (self.q_prev, self.q);
-        self.ws.fk_at(q_prev, q, s);
+        self.ws.fk_at(self.index, q_prev, q, s);
         let pose = self.ws.model.frame_pose(self.ws.frame, &self.ws.data);
         let point = Point { position: pose.translation.vector, rotation: *pose.rotation.matrix() };
         let nq = self.ws.model.nq();
@@ -378,7 +434,7 @@ impl Segment<'_> {
         let i = self.index(s);
         if !self.ws.samples[i].has_jacobian {
             let (q_prev, q) = (self.q_prev, self.q);
-            self.ws.fk_at(q_prev, q, s);
+            self.ws.fk_at(self.index, q_prev, q, s);
             let ws = &mut *self.ws;
             ws.model.frame_jacobian_unchecked(ws.frame, &ws.data, &mut ws.samples[i].jacobian);
             ws.samples[i].has_jacobian = true;
@@ -484,7 +540,9 @@ impl Feature for Table {
                 g.this[j] += g.scale * jac[(2, j)];
             }
             if let Some(h) = g.hessian {
-                seg.add_position_curvature(1.0, &Vector3::z(), g.scale, h);
+                if h.kinematic() {
+                    seg.add_position_curvature(1.0, &Vector3::z(), g.scale, h);
+                }
             }
         }
         value
@@ -540,7 +598,9 @@ impl Feature for Coffee {
                         }
                     }
                 }
-                seg.add_axis_curvature(1.0, 0, &weights, g.scale, h);
+                if h.kinematic() {
+                    seg.add_axis_curvature(1.0, 0, &weights, g.scale, h);
+                }
             }
         }
         value
@@ -731,7 +791,9 @@ impl Feature for Origin {
                         h.add_outer(1.0, g.scale / value, |j| jac[(c, j)]);
                     }
                     h.add_outer(1.0, -g.scale / value, a);
-                    seg.add_position_curvature(1.0, &u, g.scale, h);
+                    if h.kinematic() {
+                        seg.add_position_curvature(1.0, &u, g.scale, h);
+                    }
                 }
             }
         }
@@ -1019,6 +1081,7 @@ impl FeatureSet {
                 format!("{} blocks of {} × {}", hessian.blocks(), hessian.dof(), hessian.dof()),
             ));
         }
+        self.set_kinematic_curvature(true);
         Ok(self.weighted_cost_unchecked(trajectory, waypoints, weights, Some(grad), Some(hessian), None, smoothing))
     }
 
@@ -1093,6 +1156,12 @@ impl FeatureSet {
             }
         }
         cost
+    }
+
+    /// Whether the next evaluations with a Hessian include the kinematic curvature of the features
+    /// that act at every waypoint (see [`SegmentHessian::kinematic`]).
+    pub(crate) fn set_kinematic_curvature(&mut self, on: bool) {
+        self.hessian.kinematic = on;
     }
 
     /// Kinematics of waypoint `i` of the trajectory of the current evaluation (see

@@ -44,6 +44,13 @@ impl RobotModel {
     /// `nq()` (for inner loops that validated once).
     #[inline]
     pub fn forward_kinematics_unchecked(&self, q: &[f64], data: &mut RobotData) {
+        self.forward_kinematics_with(q, |i| q[i].sin_cos(), data);
+    }
+
+    /// Forward kinematics with (sin q_i, cos q_i) of the revolute joints about their z axis given by
+    /// `sin_cos(i)` (for callers that have them cheaper than libm, e.g. along a segment).
+    #[inline(always)]
+    pub(crate) fn forward_kinematics_with(&self, q: &[f64], sin_cos: impl Fn(usize) -> (f64, f64), data: &mut RobotData) {
         debug_assert_eq!(q.len(), self.nq());
         for (i, joint) in self.joints.iter().enumerate() {
             let axis = joint.axis.into_inner();
@@ -52,9 +59,19 @@ impl RobotModel {
                 // joint frame's rotation instead of multiplying by a general Rodrigues matrix
                 // (measured: forward kinematics of the JACO2 about 1.5× faster).
                 let body = &data.base_t_body[i];
-                let r = body.rotation.matrix() * joint.parent_t_joint.rotation.matrix();
+                let r = match &joint.permutation {
+                    Some(p) => {
+                        let b = body.rotation.matrix();
+                        nalgebra::Matrix3::from_columns(&[
+                            b.column(p.axis[0]) * p.sign[0],
+                            b.column(p.axis[1]) * p.sign[1],
+                            b.column(p.axis[2]) * p.sign[2],
+                        ])
+                    }
+                    None => body.rotation.matrix() * joint.parent_t_joint.rotation.matrix(),
+                };
                 let t = body.translation.vector + body.rotation * joint.parent_t_joint.translation.vector;
-                let (s, c) = q[i].sin_cos();
+                let (s, c) = sin_cos(i);
                 let s = s * axis.z;
                 let (c0, c1, c2) = (r.column(0), r.column(1), r.column(2));
                 let m = nalgebra::Matrix3::from_columns(&[c0 * c + c1 * s, c1 * c - c0 * s, c2.into_owned()]);

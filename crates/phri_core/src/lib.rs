@@ -25,4 +25,4 @@ pub mod update;
 
 pub use data::RobotData;
 pub use error::{PhriError, Result};
-pub use model::{BodyInertia, Frame, FrameId, Joint, JointKind, RobotModel, Transform};
+pub use model::{AxisPermutation, BodyInertia, Frame, FrameId, Joint, JointKind, RobotModel, Transform};

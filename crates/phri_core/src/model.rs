@@ -36,6 +36,9 @@ pub struct Joint {
     pub parent_t_joint: Transform,
     /// Unit motion axis in the joint frame.
     pub axis: Unit<Vector3<f64>>,
+    /// `parent_t_joint`'s rotation when it is a signed axis permutation (forward kinematics then
+    /// permutes columns instead of multiplying).
+    pub permutation: Option<AxisPermutation>,
     /// Position limits [rad or m]; ±∞ for continuous joints.
     pub lower: f64,
     pub upper: f64,
@@ -113,8 +116,58 @@ pub struct RobotModel {
 }
 
 fn pose(p: &urdf_rs::Pose) -> Transform {
-    let rot = Rotation3::from_euler_angles(p.rpy[0], p.rpy[1], p.rpy[2]);
+    let rot = snap_axis_permutation(Rotation3::from_euler_angles(p.rpy[0], p.rpy[1], p.rpy[2]));
     IsometryMatrix3::from_parts(Translation3::new(p.xyz[0], p.xyz[1], p.xyz[2]), rot)
+}
+
+/// A rotation within 10⁻¹⁵ per entry of a signed permutation (rpy angles that are multiples of
+/// π/2, as in most robot descriptions) becomes exactly that permutation: cos(π/2) is 6·10⁻¹⁷ in
+/// floating point, and exact zeros let forward kinematics skip the product (see `AxisPermutation`).
+fn snap_axis_permutation(r: Rotation3<f64>) -> Rotation3<f64> {
+    let near = |v: f64| {
+        if v.abs() < 1e-15 {
+            Some(0.0)
+        } else if (v.abs() - 1.0).abs() < 1e-15 {
+            Some(v.signum())
+        } else {
+            None
+        }
+    };
+    let mut m = *r.matrix();
+    for v in m.iter_mut() {
+        match near(*v) {
+            Some(s) => *v = s,
+            None => return r,
+        }
+    }
+    Rotation3::from_matrix_unchecked(m)
+}
+
+/// A rotation whose columns are signed base axes: column k is `sign[k]`·e_`axis[k]`, so R·P has
+/// column k = `sign[k]`·(column `axis[k]` of R) and costs no multiplications.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxisPermutation {
+    pub axis: [usize; 3],
+    pub sign: [f64; 3],
+}
+
+impl AxisPermutation {
+    /// The permutation `r` is exactly, if it is one.
+    pub fn of(r: &Matrix3<f64>) -> Option<Self> {
+        let mut p = AxisPermutation { axis: [0; 3], sign: [0.0; 3] };
+        for k in 0..3 {
+            let col = r.column(k);
+            let nonzero: Vec<usize> = (0..3).filter(|&i| col[i] != 0.0).collect();
+            match nonzero.as_slice() {
+                [i] if col[*i].abs() == 1.0 => {
+                    p.axis[k] = *i;
+                    p.sign[k] = col[*i];
+                }
+                _ => return None,
+            }
+        }
+        Some(p)
+    }
 }
 
 fn link_inertia(link: &urdf_rs::Link) -> BodyInertia {
@@ -396,6 +449,7 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
                     name: j.name.clone(),
                     kind,
                     parent_t_joint: origin,
+                    permutation: AxisPermutation::of(origin.rotation.matrix()),
                     axis: Unit::new_normalize(axis),
                     lower,
                     upper,

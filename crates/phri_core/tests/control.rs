@@ -230,7 +230,7 @@ proptest! {
             let (mut q1, mut q2, mut v) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
             traj.sample(t - h, &mut q1, &mut v, &mut acc);
             traj.sample(t + h, &mut q2, &mut v, &mut acc);
-            let on_knot = cubic == false && ((t / 0.5).fract() < 1e-4 || (t / 0.5).fract() > 1.0 - 1e-4);
+            let on_knot = !cubic && ((t / 0.5).fract() < 1e-4 || (t / 0.5).fract() > 1.0 - 1e-4);
             for j in 0..n {
                 prop_assert!(on_knot || ((q2[j] - q1[j]) / (2.0 * h) - vb[j]).abs() < 1e-4, "velocity at t={}", t);
             }

@@ -72,8 +72,10 @@ fn bad_feature_input_is_a_typed_error() {
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
     assert!(FeatureSet::from_names(model.clone(), frame, &["tabel"], &SceneParams::default()).is_err());
     assert!(FeatureSet::from_names(model.clone(), frame, &["table", "table"], &SceneParams::default()).is_err());
-    let bad = SceneParams { radius: -1.0, ..Default::default() };
-    assert!(FeatureSet::from_names(model, frame, &["laptop"], &bad).is_err());
+    let bad = SceneParams { laptop_radius: -1.0, ..Default::default() };
+    assert!(FeatureSet::from_names(model.clone(), frame, &["laptop"], &bad).is_err());
+    let bad = SceneParams { human_radius: f64::NAN, ..Default::default() };
+    assert!(FeatureSet::from_names(model, frame, &["human"], &bad).is_err());
     let mut fs = feature_set(&["table"]);
     let mut phi = [0.0];
     assert!(fs.phi(&[0.0; 7], &mut phi).is_err(), "one waypoint is not a trajectory");
@@ -188,7 +190,7 @@ fn hinge_curvature_is_exact_inside_the_quadratic_zone() {
     let model = Arc::new(jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
     let delta = 0.2;
-    let scene = SceneParams { radius: 0.4, ..Default::default() };
+    let scene = SceneParams { human_radius: 0.4, ..Default::default() };
     let mut fs = FeatureSet::from_names(model.clone(), frame, &["human"], &scene).unwrap();
     let a = deg([210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8]);
     let b = deg([210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4]);

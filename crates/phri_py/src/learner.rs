@@ -25,6 +25,9 @@ pub struct PyLearner {
     n: usize,
 }
 
+// The signature spells the default out so that Python's introspection shows it.
+const _: () = assert!(DEFAULT_TRANSITION_SPEED == 0.8);
+
 type Triple<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
 #[pymethods]
@@ -33,7 +36,7 @@ impl PyLearner {
     #[pyo3(signature = (
         features, deformation, update, detector, optimizer, weights, start, goal, *,
         duration = 15.0, sample_period = 0.1, interpolation = "cubic", learning = true,
-        transition_speed = DEFAULT_TRANSITION_SPEED
+        transition_speed = 0.8
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(

@@ -1,0 +1,492 @@
+"""phri.Learner (Algorithm 1): typed errors, the sampling grid and the interaction thresholds, the
+impedance baseline (learning=False), and one scripted push on the study's table task checked against
+an independent numpy reconstruction — the deformation (eq. 7) with H from a dense solve, Φ summed in
+numpy from Robot.frame_pose, the update (eq. 13, cost form) for the "all" and "confidence" rules —
+then the reference across the replan (C¹ blend or instant switch) and the shapes of the history."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+import phri
+from phri import exceptions as ex
+
+PICK_BASIC = np.radians([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8])
+PLACE_LOWER = np.radians([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0])
+THRESHOLDS = np.array([8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0])  # N·m, the JACO2's (original_system.md)
+TOOL = "j2s7s300_end_effector"
+CUP = "j2s7s300_link_7"  # the point of the position features
+DURATION = 15.0  # s
+WAYPOINTS = 31
+DT = DURATION / (WAYPOINTS - 1)  # 0.5 s between waypoints
+WINDOW, MU = 5, 0.01  # phri.Deformation() defaults
+DOWN_25N = np.array([0.0, 0.0, -25.0, 0.0, 0.0, 0.0])  # wrench at the tool point: force [N], torque [N·m]
+# Table task (Task 2), cost form: efficiency never learned, table learned with gain 2, clipped to [0, 1].
+STEP, LOWER, UPPER, LEARNED = [0.0, 2.0], [1.0, 0.0], [1.0, 1.0], [False, True]
+INITIAL = [1.0, 0.0]
+KEYS = {"t", "u_h", "delta_phi", "weights", "moved", "update", "replan"}
+
+
+@pytest.fixture(scope="module")
+def robot() -> phri.Robot:
+    return phri.Robot.jaco2()
+
+
+@pytest.fixture(scope="module")
+def features(robot: phri.Robot) -> phri.Features:
+    return phri.Features(robot, ["efficiency", "table"])
+
+
+@pytest.fixture(scope="module")
+def optimizer(features: phri.Features) -> phri.TrajectoryOptimizer:
+    return phri.TrajectoryOptimizer(features, WAYPOINTS)
+
+
+@pytest.fixture
+def make(features, optimizer):
+    """`make(step=..., rule=..., detector=..., **learner_kwargs)`: a fresh table-task Learner."""
+
+    def build(step=STEP, rule="all", detector=None, weights=INITIAL, **kwargs) -> phri.Learner:
+        update = phri.WeightUpdate(step, LOWER, UPPER, learned=LEARNED, rule=rule)
+        detector = detector or phri.InteractionDetector()
+        return phri.Learner(
+            features, phri.Deformation(), update, detector, optimizer, weights, PICK_BASIC, PLACE_LOWER,
+            duration=DURATION, **kwargs,
+        )  # fmt: skip
+
+    return build
+
+
+# --------------------------------------------------------------------------------------------------
+# numpy references
+
+
+def reference_shape(m: int) -> np.ndarray:
+    """H = R⁻¹e₁, R = AᵀA with A the (m+2)×m zero-padded second-difference matrix, scaled to ‖H‖ = √m."""
+    a = np.zeros((m + 2, m))
+    for k in range(m):
+        a[k : k + 3, k] = (1.0, -2.0, 1.0)
+    x = np.linalg.solve(a.T @ a, np.eye(m)[0])
+    return x * np.sqrt(m) / np.linalg.norm(x)
+
+
+def reference_u_h(tau: np.ndarray) -> np.ndarray:
+    """Thresholded torque: joints at or below their threshold zeroed."""
+    return np.where(np.abs(tau) > THRESHOLDS, tau, 0.0)
+
+
+def reference_deform(xi: np.ndarray, t: float, u_h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ξ_H, μ·H per waypoint and joint for a unit torque): waypoints index+1..index+5 moved."""
+    index = int(np.floor(t / DT))
+    assert index + WINDOW <= len(xi) - 2, "a full window must fit before the goal"
+    shape = np.zeros_like(xi)
+    shape[index + 1 : index + 1 + WINDOW] = MU * reference_shape(WINDOW)[:, None]
+    return xi + shape * u_h, shape
+
+
+def reference_phi(robot: phri.Robot, xi: np.ndarray) -> np.ndarray:
+    """(efficiency, table) summed over waypoints 1..N-1: Σ‖q_i − q_{i−1}‖², Σ z of the link_7 origin."""
+    efficiency = float(np.sum(np.diff(xi, axis=0) ** 2))
+    table = sum(robot.frame_pose(CUP, q)[2, 3] for q in xi[1:])
+    return np.array([efficiency, table])
+
+
+def reference_relevance(delta_phi: np.ndarray, sensitivity: np.ndarray, u_h: np.ndarray) -> np.ndarray:
+    """r_k = min(1, ΔΦ_k² / (‖S_k‖²·‖u_H‖²)), 0 when either norm vanishes."""
+    s2 = np.sum(sensitivity**2, axis=1)
+    push = float(u_h @ u_h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where((s2 > 0) & (push > 0), delta_phi**2 / (s2 * push), 0.0)
+    return np.minimum(1.0, r)
+
+
+def reference_update(w, delta_phi, step, relevance=1.0) -> np.ndarray:
+    target = np.asarray(w) - np.asarray(step) * relevance * delta_phi
+    return np.where(LEARNED, np.clip(target, LOWER, UPPER), w)
+
+
+def push_torque(robot: phri.Robot, learner: phri.Learner, t: float, wrench=DOWN_25N) -> np.ndarray:
+    """u_H = Jᵀ·wrench at the tool point, at the learner's current reference."""
+    q, _, _ = learner.reference(t)
+    return robot.jacobian(TOOL, q).T @ wrench
+
+
+def tracked(learner: phri.Learner) -> np.ndarray:
+    """The trajectory the arm follows, at the waypoint times (the plan, or the blend into it)."""
+    return np.array([learner.reference(i * DT)[0] for i in range(WAYPOINTS)])
+
+
+# --------------------------------------------------------------------------------------------------
+# errors
+
+
+def nan_at(v, i: int) -> np.ndarray:
+    v = np.array(v, dtype=float)
+    v[i] = np.nan
+    return v
+
+
+CONSTRUCTION_ERRORS = [
+    ({"weights": [1.0, 0.0, 0.0]}, ex.ShapeError, "weights must have shape (2,), got (3,)"),
+    ({"weights": [[1.0, 0.0]]}, ex.ShapeError, "weights must have shape (2,), got (1, 2)"),
+    ({"start": PICK_BASIC[:6]}, ex.ShapeError, "start must have shape (7,), got (6,)"),
+    ({"goal": np.append(PLACE_LOWER, 0.0)}, ex.ShapeError, "goal must have shape (7,), got (8,)"),
+    ({"weights": nan_at(INITIAL, 1)}, ex.NonFiniteError, "weights must be finite, got NaN at index 1"),
+    ({"start": nan_at(PICK_BASIC, 2)}, ex.NonFiniteError, "start must be finite, got NaN at index 2"),
+    ({"goal": nan_at(PLACE_LOWER, 6)}, ex.NonFiniteError, "goal must be finite, got NaN at index 6"),
+    ({"sample_period": 0.0}, ex.InvalidParameterError, "sample_period must be a finite time > 0 s, got 0"),
+    ({"sample_period": -0.1}, ex.InvalidParameterError, "sample_period must be a finite time > 0 s"),
+    (
+        {"sample_period": np.nan},
+        ex.InvalidParameterError,
+        "sample_period must be a finite time > 0 s, got NaN",
+    ),
+    ({"sample_period": np.inf}, ex.InvalidParameterError, "sample_period must be a finite time > 0 s"),
+    ({"transition_speed": -0.1}, ex.InvalidParameterError, "transition_speed must be a finite fraction"),
+    ({"transition_speed": np.nan}, ex.InvalidParameterError, "transition_speed must be a finite fraction"),
+    ({"transition_speed": np.inf}, ex.InvalidParameterError, "transition_speed must be a finite fraction"),
+    ({"interpolation": "spline"}, ex.InvalidParameterError, "interpolation must be 'cubic' or 'linear'"),
+    ({"interpolation": "Cubic"}, ex.InvalidParameterError, "interpolation must be 'cubic' or 'linear'"),
+    ({"duration": 0.0}, ex.InvalidParameterError, "duration must be a finite time > 0 s"),
+    (
+        {"update": phri.WeightUpdate([0.0, 2.0, 1.0], [1.0, 0.0, 0.0], [1.0, 1.0, 1.0])},
+        ex.ShapeError,
+        "update must have shape one step per feature (2), got 3",
+    ),
+    (
+        {"detector": phri.InteractionDetector(np.ones(6))},
+        ex.ShapeError,
+        "thresholds must have shape (7,), got (6,)",
+    ),
+]
+
+
+def error_id(case) -> str:
+    (name, value), error = next(iter(case[0].items())), case[1]
+    if isinstance(value, (str, float)):
+        return f"{name}={value}"
+    if isinstance(value, phri.WeightUpdate):
+        return f"{name}-{len(value)}-steps"
+    return f"{name}-{error.__name__}-{np.shape(getattr(value, 'thresholds', value))}"
+
+
+@pytest.mark.parametrize(
+    ("change", "error", "pattern"), CONSTRUCTION_ERRORS, ids=[error_id(c) for c in CONSTRUCTION_ERRORS]
+)
+def test_construction_errors_are_typed_and_name_the_argument(features, optimizer, change, error, pattern):
+    args = {
+        "update": phri.WeightUpdate(STEP, LOWER, UPPER, learned=LEARNED),
+        "detector": phri.InteractionDetector(),
+        "weights": INITIAL,
+        "start": PICK_BASIC,
+        "goal": PLACE_LOWER,
+    }
+    kwargs = {k: v for k, v in change.items() if k not in args}
+    args.update({k: v for k, v in change.items() if k in args})
+    with pytest.raises(error, match="^" + re.escape(pattern)):
+        phri.Learner(
+            features, phri.Deformation(), args["update"], args["detector"], optimizer,
+            args["weights"], args["start"], args["goal"], **kwargs,
+        )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("call", "error", "pattern"),
+    [
+        (
+            lambda lr: lr.observe(0.0, np.zeros(6)),
+            ex.ShapeError,
+            "tau_measured must have shape (7,), got (6,)",
+        ),
+        (
+            lambda lr: lr.observe(0.0, np.zeros((1, 7))),
+            ex.ShapeError,
+            "tau_measured must have shape (7,), got (1, 7)",
+        ),
+        (
+            lambda lr: lr.observe(0.0, nan_at(np.zeros(7), 3)),
+            ex.NonFiniteError,
+            "tau_measured must be finite, got NaN at index 3",
+        ),
+        (lambda lr: lr.observe(np.nan, np.zeros(7)), ex.NonFiniteError, "t must be finite, got NaN"),
+        (lambda lr: lr.observe(np.inf, np.zeros(7)), ex.NonFiniteError, "t must be finite, got inf"),
+        (lambda lr: lr.reference(np.nan), ex.NonFiniteError, "t must be finite, got NaN"),
+        (lambda lr: lr.reference(-np.inf), ex.NonFiniteError, "t must be finite, got -inf"),
+    ],
+    ids=["tau-short", "tau-2d", "tau-nan", "t-nan", "t-inf", "reference-nan", "reference-inf"],
+)
+def test_observe_and_reference_errors_are_typed_and_leave_the_learner_untouched(make, call, error, pattern):
+    learner = make()
+    with pytest.raises(error, match="^" + re.escape(pattern)):
+        call(learner)
+    # The failed call consumed no sample instant and recorded nothing.
+    assert learner.observe(0.0, np.zeros(7)) == (True, False, False)
+    assert learner.interactions() == [] and len(learner.plans()) == 1
+
+
+# --------------------------------------------------------------------------------------------------
+# sampling and thresholds
+
+
+def test_a_1khz_loop_is_sampled_every_100_ticks(make):
+    learner = make(learning=False)
+    sampled = []
+    for k in range(1001):  # t = k·1 ms carries rounding: 0.001·k is not exactly k/1000
+        obs = learner.observe(k * 0.001, np.zeros(7))
+        if obs[0]:
+            sampled.append(k)
+            assert obs == (True, False, False)
+        else:
+            assert obs == (False, False, False), f"tick {k}"
+    assert sampled == list(range(0, 1001, 100))
+
+
+def test_a_late_tick_samples_once_and_missed_instants_are_not_replayed(make):
+    learner = make(learning=False)
+    push = 2.0 * THRESHOLDS
+    assert learner.observe(0.0, np.zeros(7)) == (True, False, False)
+    assert learner.observe(0.05, push) == (False, False, False), "between instants: not even looked at"
+    assert learner.observe(0.35, push) == (True, True, False), "0.1, 0.2, 0.3 missed: one late sample"
+    assert learner.observe(0.38, push) == (False, False, False)
+    assert learner.observe(0.4, push) == (True, True, False)
+    assert [i["t"] for i in learner.interactions()] == [0.35, 0.4]
+
+
+def test_thresholds_are_the_jaco2s_and_strict(make):
+    np.testing.assert_array_equal(phri.InteractionDetector().thresholds, THRESHOLDS)
+    learner = make(learning=False)
+    signs = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0])
+    t = 0.0
+    for tau in (0.999 * signs * THRESHOLDS, signs * THRESHOLDS):  # below and exactly at: no interaction
+        assert learner.observe(t, tau) == (True, False, False)
+        t += 0.1
+    assert learner.interactions() == []
+    for j in range(7):
+        tau = 0.99 * signs * THRESHOLDS
+        tau[j] = signs[j] * 1.01 * THRESHOLDS[j]
+        assert learner.observe(t, tau) == (True, True, False), f"joint {j}"
+        want = np.zeros(7)
+        want[j] = tau[j]
+        np.testing.assert_array_equal(learner.interactions()[-1]["u_h"], want)
+        t += 0.1
+    assert len(learner.interactions()) == 7
+
+
+# --------------------------------------------------------------------------------------------------
+# the impedance baseline
+
+
+def test_without_learning_pushes_are_recorded_but_nothing_changes(robot, make):
+    learner = make(learning=False)
+    assert learner.learning is False
+    plan0 = learner.plan
+    reference0 = [learner.reference(t) for t in (3.9, 4.0, 6.0, 14.9)]
+    t_push = [4.0, 4.1, 4.2, 4.3]
+    for t in t_push:
+        tau = push_torque(robot, learner, t)
+        assert learner.observe(t, tau) == (True, True, False)
+    records = learner.interactions()
+    assert [r["t"] for r in records] == t_push
+    for r, t in zip(records, t_push, strict=True):
+        np.testing.assert_array_equal(r["u_h"], reference_u_h(push_torque(robot, learner, t)))
+        assert np.any(r["u_h"] != 0)
+        assert r["delta_phi"].shape == (0,) and r["moved"] == 0
+        assert r["update"] is None and r["replan"] is None
+        np.testing.assert_array_equal(r["weights"], INITIAL)
+    np.testing.assert_array_equal(learner.weights, INITIAL)
+    np.testing.assert_array_equal(learner.plan, plan0)
+    plans = learner.plans()
+    assert len(plans) == 1 and plans[0][0] == 0.0
+    np.testing.assert_array_equal(plans[0][1], plan0)
+    for before, t in zip(reference0, (3.9, 4.0, 6.0, 14.9), strict=True):
+        for a, b in zip(before, learner.reference(t), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+# --------------------------------------------------------------------------------------------------
+# one scripted push, against numpy
+
+
+def test_the_initial_plan_is_the_optimizers_for_the_clipped_weights(make, optimizer):
+    learner = make(weights=[3.0, -2.0])  # clipped into [1, 1] × [0, 1]
+    np.testing.assert_array_equal(learner.weights, [1.0, 0.0])
+    assert learner.learning is True
+    plan, info = optimizer.solve([1.0, 0.0], PICK_BASIC, PLACE_LOWER)
+    assert info.converged
+    np.testing.assert_allclose(learner.plan, plan, rtol=0, atol=1e-12)
+    assert learner.plan.shape == (WAYPOINTS, 7)
+    np.testing.assert_array_equal(learner.plan[0], PICK_BASIC)
+    np.testing.assert_array_equal(learner.plan[-1], PLACE_LOWER)
+
+
+@pytest.mark.parametrize("step", [STEP, [0.0, 0.5]], ids=["gain-2-clipped", "gain-0.5"])
+def test_a_downward_push_matches_the_numpy_reconstruction(robot, make, step):
+    learner = make(step=step)
+    t = 4.0
+    xi_r = learner.plan  # no blend on a fresh learner: the arm tracks the plan itself
+    np.testing.assert_allclose(tracked(learner), xi_r, rtol=0, atol=1e-12)
+    tau = push_torque(robot, learner, t)
+    assert learner.observe(t, tau) == (True, True, True)
+
+    u_h = reference_u_h(tau)
+    xi_h, _ = reference_deform(xi_r, t, u_h)
+    np.testing.assert_allclose(phri.Deformation().deform(xi_r, int(t / DT), u_h), xi_h, rtol=0, atol=1e-12)
+    delta_phi = reference_phi(robot, xi_h) - reference_phi(robot, xi_r)
+    assert delta_phi[1] < -0.1, "pushing down lowers the cup: the table feature (height) drops"
+
+    (record,) = learner.interactions()
+    assert record["t"] == t and record["moved"] == WINDOW
+    np.testing.assert_array_equal(record["u_h"], u_h)
+    np.testing.assert_allclose(record["delta_phi"], delta_phi, rtol=0, atol=1e-9)
+    weights = reference_update(INITIAL, delta_phi, step)
+    np.testing.assert_allclose(record["weights"], weights, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(learner.weights, weights, rtol=0, atol=1e-12)
+    assert learner.weights[1] > INITIAL[1], "the table weight grows"
+    assert record["update"].clipped == (step == STEP)
+    assert record["update"].chosen is None
+    assert abs(record["update"].max_change - abs(weights[1] - INITIAL[1])) < 1e-12
+
+    plans = learner.plans()
+    assert len(plans) == 2 and plans[1][0] == t
+    np.testing.assert_array_equal(plans[1][1], learner.plan)
+    assert np.abs(learner.plan - xi_r).max() > 1e-3, "the new weights give a new plan"
+    assert record["replan"].converged
+
+
+def test_the_confidence_rule_scales_the_step_by_the_numpy_relevance(robot, features, make):
+    step = [0.0, 0.5]  # small enough not to clip, so the relevance shows in the weight
+    learner = make(step=step, rule="confidence")
+    t = 4.0
+    xi_r = learner.plan
+    tau = push_torque(robot, learner, t)
+    assert learner.observe(t, tau) == (True, True, True)
+
+    u_h = reference_u_h(tau)
+    xi_h, shape = reference_deform(xi_r, t, u_h)
+    delta_phi = reference_phi(robot, xi_h) - reference_phi(robot, xi_r)
+    _, jac = features.phi_gradient(xi_r)  # (K, N, n)
+    assert jac.shape == (2, WAYPOINTS, 7)
+    sensitivity = np.einsum("kij,ij->kj", jac, shape)  # S = ∂ΔΦ/∂u_H, (K, n)
+    relevance = reference_relevance(delta_phi, sensitivity, u_h)
+    assert relevance[0] == 1.0 and 0.5 < relevance[1] < 0.99, f"relevance {relevance}"
+
+    (record,) = learner.interactions()
+    np.testing.assert_allclose(record["delta_phi"], delta_phi, rtol=0, atol=1e-9)
+    weights = reference_update(INITIAL, delta_phi, step, relevance)
+    np.testing.assert_allclose(record["weights"], weights, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(learner.weights, weights, rtol=0, atol=1e-12)
+    assert not record["update"].clipped
+    # The same push under the "all" rule moves the weight further, by 1/relevance.
+    full = reference_update(INITIAL, delta_phi, step)
+    assert abs((weights[1] - INITIAL[1]) - relevance[1] * (full[1] - INITIAL[1])) < 1e-12
+
+
+def test_a_push_during_the_blend_deforms_the_blended_reference(robot, make):
+    learner = make(step=[0.0, 0.5])
+    assert learner.observe(4.0, push_torque(robot, learner, 4.0))[2]
+    xi_r = tracked(learner)  # the blend from the old plan is still running at 4.1 s
+    assert np.abs(xi_r - learner.plan).max() > 1e-2, "the blend should still be visible"
+    w = learner.weights
+    t = 4.1
+    tau = push_torque(robot, learner, t)
+    assert learner.observe(t, tau) == (True, True, True)
+    u_h = reference_u_h(tau)
+    xi_h, _ = reference_deform(xi_r, t, u_h)
+    delta_phi = reference_phi(robot, xi_h) - reference_phi(robot, xi_r)
+    record = learner.interactions()[-1]
+    np.testing.assert_allclose(record["delta_phi"], delta_phi, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(record["weights"], reference_update(w, delta_phi, [0.0, 0.5]), atol=1e-12)
+    assert [p[0] for p in learner.plans()] == [0.0, 4.0, 4.1]
+
+
+def test_a_push_too_close_to_the_goal_is_recorded_but_moves_nothing(robot, make):
+    learner = make()
+    t = 13.0  # waypoint 26: fewer than 5 waypoints left before the goal (skip rule)
+    assert learner.observe(t, push_torque(robot, learner, t)) == (True, True, False)
+    (record,) = learner.interactions()
+    assert record["moved"] == 0 and record["delta_phi"].shape == (0,)
+    assert record["update"] is None and record["replan"] is None
+    np.testing.assert_array_equal(learner.weights, INITIAL)
+    assert len(learner.plans()) == 1
+
+
+# --------------------------------------------------------------------------------------------------
+# the reference across a replan
+
+
+@pytest.mark.parametrize(("interpolation", "t"), [("cubic", 4.0), ("cubic", 4.2), ("linear", 4.2)])
+def test_after_a_replan_the_reference_is_c1_and_blends_into_the_new_plan(robot, make, interpolation, t):
+    learner = make(interpolation=interpolation)
+    q_left, qd_left, _ = learner.reference(t - 1e-9)
+    q_at, qd_at, _ = learner.reference(t)
+    assert learner.observe(t, push_torque(robot, learner, t)) == (True, True, True)
+    q_after, qd_after, _ = learner.reference(t)
+    np.testing.assert_allclose(q_after, q_at, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(qd_after, qd_at, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(q_after, q_left, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(qd_after, qd_left, rtol=0, atol=1e-8)
+
+    plan = phri.TimedTrajectory(learner.plan, DURATION, interpolation)
+    q_plan, _, _ = plan.sample(t)
+    assert np.abs(q_plan - q_after).max() > 0.1, "the new plan lies far from the old reference"
+    for got, want in zip(learner.reference(14.9), plan.sample(14.9), strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    # Within the blend: joint speeds at most 0.8 × the velocity limits, or the new plan's own speed.
+    times = np.linspace(t, DURATION, 2201)
+    qd = np.array([learner.reference(s)[1] for s in times])
+    _, qd_plan, _ = plan.sample_many(times)
+    limit = np.maximum(0.8 * robot.velocity_limits, np.abs(qd_plan))
+    assert np.all(np.abs(qd) <= limit * (1 + 1e-6)), f"worst {np.max(np.abs(qd) / limit)}"
+
+
+def test_with_transition_speed_zero_the_reference_jumps_to_the_new_plan(robot, make):
+    t = 4.0
+    learner = make(transition_speed=0.0)
+    q_before, _, _ = learner.reference(t)
+    assert learner.observe(t, push_torque(robot, learner, t)) == (True, True, True)
+    plan = phri.TimedTrajectory(learner.plan, DURATION)
+    for s in (t, t + 0.05, 5.0, 8.0, 14.9):
+        for got, want in zip(learner.reference(s), plan.sample(s), strict=True):
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12, err_msg=f"t = {s}")
+    assert np.abs(learner.reference(t)[0] - q_before).max() > 0.1, "an instant switch jumps"
+
+
+# --------------------------------------------------------------------------------------------------
+# the history
+
+
+def test_history_shapes_and_keys(robot, make):
+    learner = make()
+    plans = learner.plans()
+    assert isinstance(plans, list) and len(plans) == 1
+    t0, plan0 = plans[0]
+    assert isinstance(t0, float) and t0 == 0.0
+    assert plan0.shape == (WAYPOINTS, 7) and plan0.dtype == np.float64
+    for t in (4.0, 4.1):
+        learner.observe(t, push_torque(robot, learner, t))
+    learner.observe(4.2, np.zeros(7))  # sampled, no interaction: not recorded
+    records = learner.interactions()
+    assert len(records) == 2
+    for r, t in zip(records, (4.0, 4.1), strict=True):
+        assert set(r) == KEYS
+        assert isinstance(r["t"], float) and r["t"] == t
+        assert r["u_h"].shape == (7,) and r["delta_phi"].shape == (2,) and r["weights"].shape == (2,)
+        assert isinstance(r["moved"], int) and r["moved"] == WINDOW
+        assert isinstance(r["update"], phri.UpdateInfo)
+        assert isinstance(r["replan"], phri.TrajoptInfo)
+    np.testing.assert_array_equal(records[-1]["weights"], learner.weights)
+    plans = learner.plans()
+    assert [p[0] for p in plans] == [0.0, 4.0, 4.1]
+    assert all(p.shape == (WAYPOINTS, 7) for _, p in plans)
+    np.testing.assert_array_equal(plans[-1][1], learner.plan)
+    # What the accessors return are copies.
+    learner.plan[:] = 0.0
+    learner.weights[:] = 7.0
+    plans[0][1][:] = 0.0
+    records[0]["weights"][:] = 7.0
+    assert np.all(learner.plan[0] == PICK_BASIC) and np.all(learner.weights <= 1.0)
+    np.testing.assert_array_equal(learner.plans()[0][1][0], PICK_BASIC)
+    assert np.all(learner.interactions()[0]["weights"] <= 1.0)

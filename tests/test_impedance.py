@@ -141,15 +141,16 @@ def reference_eq5(robot, q, qd, q_ref, qd_ref, qdd_ref, u_h, k, b, m_r):
     return saturate(robot, robot.mass_matrix(q) @ qdd + h - u_h)
 
 
-def reference_implicit(robot, q, qd, q_ref, qd_ref, dt, k, b):
-    """Stable PD in numpy: (M + BΔt) q̈ = K(q_R − q − q̇Δt) + B(q̇_R − q̇) − C(q, q̇)q̇, then
-    τ = g + K(q_R − q − q̇Δt) + B(q̇_R − q̇ − q̈Δt)."""
+def reference_implicit(robot, q, qd, q_ref, qd_ref, dt, k, b, gravity=True):
+    """Stable PD in numpy: (M + BΔt) q̈ = K(q_R − q − q̇Δt) + B(q̇_R − q̇) − C(q, q̇)q̇ [− g without
+    compensation], then τ = [g +] K(q_R − q − q̇Δt) + B(q̇_R − q̇ − q̈Δt)."""
     k, b = as_matrix(k), as_matrix(b)
     g = robot.gravity(q)
-    coriolis = robot.nonlinear_effects(q, qd) - g
+    compensation = g if gravity else np.zeros(7)
+    h = robot.nonlinear_effects(q, qd)  # C(q, q̇)q̇ + g
     e_pred = q_ref - q - qd * dt
-    qdd = np.linalg.solve(robot.mass_matrix(q) + b * dt, k @ e_pred + b @ (qd_ref - qd) - coriolis)
-    return saturate(robot, g + k @ e_pred + b @ (qd_ref - qd - qdd * dt))
+    qdd = np.linalg.solve(robot.mass_matrix(q) + b * dt, k @ e_pred + b @ (qd_ref - qd) - h + compensation)
+    return saturate(robot, compensation + k @ e_pred + b @ (qd_ref - qd - qdd * dt))
 
 
 @pytest.mark.parametrize("inertia", ["diagonal", "full"])
@@ -180,9 +181,10 @@ def test_eq5_matches_numpy_reference(jaco2, gen, inertia, gains):
     assert saturated > 5 and free > 5, f"{saturated} saturated, {free} not: the sweep should see both"
 
 
+@pytest.mark.parametrize("gravity", [True, False])
 @pytest.mark.parametrize("gains", ["default", "diagonal", "full"])
 @pytest.mark.parametrize("dt", [1e-3, 1e-2])
-def test_torque_implicit_matches_numpy_reference(jaco2, gen, gains, dt):
+def test_torque_implicit_matches_numpy_reference(jaco2, gen, gains, dt, gravity):
     if gains == "default":
         k, b, kwargs = K_DEFAULT, B_DEFAULT, {}
     elif gains == "diagonal":
@@ -191,7 +193,7 @@ def test_torque_implicit_matches_numpy_reference(jaco2, gen, gains, dt):
     else:
         k, b = random_spd(gen, 60.0), random_spd(gen, 6.0)
         kwargs = {"stiffness": k, "damping": b}
-    c = phri.ImpedanceController(jaco2, **kwargs)
+    c = phri.ImpedanceController(jaco2, gravity_compensation=gravity, **kwargs)
     saturated, free = 0, 0
     for _ in range(200):
         q = random_q(jaco2, gen)
@@ -199,7 +201,7 @@ def test_torque_implicit_matches_numpy_reference(jaco2, gen, gains, dt):
         q_ref = q + gen.normal(scale=0.15, size=7)
         qd_ref = gen.normal(scale=0.5, size=7)
         tau = c.torque_implicit(q, qd, q_ref, qd_ref, dt)
-        want, bits = reference_implicit(jaco2, q, qd, q_ref, qd_ref, dt, k, b)
+        want, bits = reference_implicit(jaco2, q, qd, q_ref, qd_ref, dt, k, b, gravity)
         np.testing.assert_allclose(tau, want, rtol=0, atol=TOL, err_msg=f"q={q.tolist()}")
         assert c.saturated == bits, f"q={q.tolist()}"
         saturated += bits != 0

@@ -153,13 +153,13 @@ CONSTRUCTION_ERRORS = [
     ({"duration": 0.0}, ex.InvalidParameterError, "duration must be a finite time > 0 s"),
     (
         {"update": phri.WeightUpdate([0.0, 2.0, 1.0], [1.0, 0.0, 0.0], [1.0, 1.0, 1.0])},
-        ex.ShapeError,
-        "update must have shape one step per feature (2), got 3",
+        ex.InvalidParameterError,
+        "update must have one step per feature (2 features), got 3 steps",
     ),
     (
         {"detector": phri.InteractionDetector(np.ones(6))},
-        ex.ShapeError,
-        "thresholds must have shape (7,), got (6,)",
+        ex.InvalidParameterError,
+        "detector must have one threshold per joint (7 joints), got 6",
     ),
 ]
 
@@ -225,6 +225,15 @@ def test_observe_and_reference_errors_are_typed_and_leave_the_learner_untouched(
     # The failed call consumed no sample instant and recorded nothing.
     assert learner.observe(0.0, np.zeros(7)) == (True, False, False)
     assert learner.interactions() == [] and len(learner.plans()) == 1
+
+
+def test_a_finite_but_absurd_torque_is_an_error_naming_it(make):
+    learner = make()
+    weights, plan = learner.weights, learner.plan
+    with pytest.raises(ex.InvalidParameterError, match="^tau_measured is so large that the deformed"):
+        learner.observe(4.0, np.full(7, 1e300))
+    np.testing.assert_array_equal(learner.weights, weights)
+    np.testing.assert_array_equal(learner.plan, plan)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -68,7 +68,9 @@ pub struct ImpedanceParams {
     pub damping: Gain,
     /// Desired inertia M_R [kg·m²] for the full law (eq. 5); unused by eq. 6.
     pub inertia: Option<Gain>,
-    /// Add g(q) from the model (eq. 6 as run on a real arm, which needs it to hold its own weight).
+    /// Add g(q) from the model to eq. 6 (`torque`, `torque_implicit`), as a real arm needs to hold
+    /// its own weight. The full law (eq. 5, `torque_full`) always includes g: feedback
+    /// linearisation cancels the arm's whole dynamics.
     pub gravity_compensation: bool,
 }
 
@@ -254,7 +256,11 @@ impl ImpedanceController {
         self.params.damping.apply(&self.error_dot, &mut self.scratch2); // B·ė
                                                                         // C(q, q̇)q̇ + g(q) and g(q), then M(q) (all after one forward kinematics).
         self.model.nonlinear_effects(q, qd, &mut self.data, &mut self.bias)?;
-        self.model.gravity_after_fk(&mut self.data, tau);
+        if self.params.gravity_compensation {
+            self.model.gravity_after_fk(&mut self.data, tau);
+        } else {
+            tau.fill(0.0); // gravity then acts on the arm, in the predicted q̈ as in the physics
+        }
         let mut lhs = std::mem::take(&mut self.implicit_lhs);
         self.model.mass_matrix_after_fk(&mut self.data, &mut lhs);
         match &self.params.damping {

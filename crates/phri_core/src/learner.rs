@@ -130,10 +130,16 @@ impl Learner {
         let k = features.len();
         let n = features.model().nq();
         if update.len() != k {
-            return Err(PhriError::shape("update", format!("one step per feature ({k})"), update.len().to_string()));
+            return Err(PhriError::invalid(
+                "update",
+                format!("must have one step per feature ({k} features), got {} steps", update.len()),
+            ));
         }
         if detector.thresholds().len() != n {
-            return Err(PhriError::shape("thresholds", format!("({n},)"), format!("({},)", detector.thresholds().len())));
+            return Err(PhriError::invalid(
+                "detector",
+                format!("must have one threshold per joint ({n} joints), got {}", detector.thresholds().len()),
+            ));
         }
         if !(params.sample_period.is_finite() && params.sample_period > 0.0) {
             return Err(PhriError::invalid(
@@ -288,6 +294,12 @@ impl Learner {
         self.features.phi(&self.deformed, &mut self.phi_h)?;
         for k in 0..self.delta_phi.len() {
             self.delta_phi[k] = self.phi_h[k] - self.phi_r[k];
+        }
+        if self.delta_phi.iter().any(|v| !v.is_finite()) {
+            return Err(PhriError::invalid(
+                "tau_measured",
+                "is so large that the deformed trajectory's features overflow (non-finite)",
+            ));
         }
         let relevance = if self.update.params().rule == UpdateRule::Confidence {
             self.compute_relevance(index)?;

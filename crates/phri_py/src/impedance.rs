@@ -121,7 +121,8 @@ fn gain_array<'py>(py: Python<'py>, g: &Gain) -> PyResult<Bound<'py, PyArrayDyn<
 /// effort limits [N·m]. Gains are 1-D (diagonal, (n,)) or 2-D ((n, n)) arrays: stiffness K
 /// [N·m/rad], damping B [N·m·s/rad], inertia M_R [kg·m²]; full matrices must be symmetric positive
 /// semidefinite (M_R definite). K and B default to the JACO2 gains (200, 300, 150, 150, 50, 50, 30)
-/// and (20, 30, 15, 15, 5, 5, 3).
+/// and (20, 30, 15, 15, 5, 5, 3). `gravity_compensation` adds g(q) to eq. 6 (`torque`,
+/// `torque_implicit`); eq. 5 always includes it (feedback linearisation cancels all the dynamics).
 #[pyclass(name = "ImpedanceController", module = "phri._phri")]
 pub struct PyImpedanceController {
     controller: ImpedanceController,

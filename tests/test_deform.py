@@ -182,6 +182,8 @@ def test_argument_errors() -> None:
     bad[4, 2] = np.nan
     with pytest.raises(NonFiniteError, match=r"trajectory must be finite, got NaN at index \(4, 2\)"):
         d.deform(bad, 0, np.ones(7))
+    with pytest.raises(InvalidParameterError, match=r"^u_h is so large that μ·u_h overflows"):
+        phri.Deformation(mu=1e308).deform(trajectory, 0, np.full(7, 10.0))
     with pytest.raises(NonFiniteError, match="u_h must be finite"):
         d.deform(trajectory, 0, [1, 1, 1, np.inf, 1, 1, 1])
     with pytest.raises(InvalidParameterError, match="index must be < 31, the number of waypoints, got 31"):

@@ -273,6 +273,8 @@ def test_unknown_and_repeated_names_are_typed_errors(jaco2):
         ({"human_radius": float("nan")}, "human_radius"),
         ({"samples": 0}, "samples"),
         ({"samples": -3}, "samples"),
+        ({"samples": 10**6}, "samples"),
+        ({"ranges": [1.0, 1e-320]}, "ranges"),
         ({"ranges": [1.0, 0.0]}, "ranges"),
         ({"ranges": [1.0, -2.0]}, "ranges"),
     ],

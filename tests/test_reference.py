@@ -149,6 +149,7 @@ def test_properties_index_and_set_waypoints(gen):
         ((np.zeros((3, 7)), 0.0), ex.InvalidParameterError, "duration must be a finite time > 0 s, got 0"),
         ((np.zeros((3, 7)), -2.0), ex.InvalidParameterError, "duration must be a finite time > 0 s"),
         ((np.zeros((3, 7)), float("nan")), ex.InvalidParameterError, "duration must be a finite time > 0 s"),
+        ((np.zeros((3, 7)), 1e-320), ex.InvalidParameterError, "duration must be a finite time > 0 s"),
         (
             (np.zeros((3, 7)), 1.0, "quintic"),
             ex.InvalidParameterError,

@@ -230,6 +230,12 @@ def test_unknown_rule_names_the_allowed_values():
         ({"lower": [0.0, np.nan]}, ex.InvalidParameterError, "lower [1] = NaN"),
         ({"learned": [True]}, ex.ShapeError, "learned must have shape (2,) like step, got (1,)"),
         ({"ranges": [1.0, 0.0]}, ex.InvalidParameterError, "ranges [1] must be finite and > 0"),
+        ({"ranges": [1.0, 1e-320]}, ex.InvalidParameterError, "ranges [1] must be finite and > 0"),
+        (
+            {"lower": [0.0, np.inf], "upper": [1.0, np.inf]},
+            ex.InvalidParameterError,
+            "lower [1] = inf and upper[1] = inf leave no finite weight between them",
+        ),
         ({"ranges": [1.0]}, ex.ShapeError, "ranges must have shape (2,) like step, got (1,)"),
     ],
 )
@@ -255,3 +261,9 @@ def test_bad_apply_input_is_a_typed_error():
         update.apply([0.0, 0.0], [0.0, 0.0], [np.nan, 1.0])
     with pytest.raises(ex.ShapeError, match="^weights must have shape"):
         update.clip([0.0])
+    # Finite inputs whose step overflows: an error, and the weights stay as they were.
+    unbounded = phri.WeightUpdate([1e308, 1e308], [0.0, -np.inf], [1.0, np.inf])
+    weights = np.array([0.5, 0.5])
+    with pytest.raises(ex.InvalidParameterError, match=r"^delta_phi \[1\] = -1e300 times step 1e308 overflows"):
+        unbounded.apply(weights, [-1e-3, -1e300])
+    np.testing.assert_array_equal(weights, [0.5, 0.5])

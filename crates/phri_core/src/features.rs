@@ -831,6 +831,10 @@ impl Default for SceneParams {
     }
 }
 
+/// Most keep-out samples per segment (the original used 4; more than this is a mistake, and would
+/// make every evaluation slow).
+pub const MAX_SAMPLES: usize = 1000;
+
 /// Names accepted by [`builtin`].
 pub const BUILTIN_FEATURES: [&str; 7] = ["efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin"];
 
@@ -841,8 +845,11 @@ pub fn builtin(name: &str, scene: &SceneParams) -> Result<Box<dyn Feature>> {
             return Err(PhriError::invalid(arg, format!("must be a finite distance > 0 m, got {radius}")));
         }
     }
-    if scene.samples == 0 {
-        return Err(PhriError::invalid("samples", "must be at least 1 point per segment, got 0"));
+    if scene.samples == 0 || scene.samples > MAX_SAMPLES {
+        return Err(PhriError::invalid(
+            "samples",
+            format!("must be 1 to {MAX_SAMPLES} points per segment, got {}", scene.samples),
+        ));
     }
     check_finite("table_height", &[scene.table_height])?;
     check_finite("laptop_center", &scene.laptop_center)?;
@@ -928,8 +935,12 @@ impl FeatureSet {
                 if r.len() != self.len() {
                     return Err(PhriError::shape("ranges", format!("({},)", self.len()), format!("({},)", r.len())));
                 }
-                if let Some((i, v)) = r.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v > 0.0)) {
-                    return Err(PhriError::invalid("ranges", format!("[{i}] must be finite and > 0, got {v}")));
+                if let Some((i, v)) = r.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v > 0.0 && (1.0 / **v).is_finite()))
+                {
+                    return Err(PhriError::invalid(
+                        "ranges",
+                        format!("[{i}] must be finite and > 0 (with a finite inverse), got {v}"),
+                    ));
                 }
                 self.inv_range.iter_mut().zip(r).for_each(|(o, v)| *o = 1.0 / v);
             }

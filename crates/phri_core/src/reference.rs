@@ -93,7 +93,8 @@ impl TimedTrajectory {
             return Err(PhriError::shape("waypoints", format!("(N, {n}) with N >= 2"), format!("{} values", waypoints.len())));
         }
         check_finite("waypoints", &waypoints)?;
-        if !(duration.is_finite() && duration > 0.0) {
+        let segments = (waypoints.len() / n - 1) as f64;
+        if !(duration.is_finite() && duration > 0.0 && (segments / duration).is_finite()) {
             return Err(PhriError::invalid("duration", format!("must be a finite time > 0 s, got {duration}")));
         }
         let scratch = Scratch { q_old: vec![0.0; n], v_old: vec![0.0; n], q: vec![0.0; n], v: vec![0.0; n], a: vec![0.0; n] };

@@ -79,9 +79,18 @@ impl WeightUpdate {
             if lo.is_nan() || hi.is_nan() || lo > hi {
                 return Err(PhriError::invalid("lower", format!("[{i}] = {lo} must not be above upper[{i}] = {hi}")));
             }
+            // ±∞ bounds mean "unbounded on that side"; both on the same infinity leave no weight.
+            if *lo == f64::INFINITY || *hi == f64::NEG_INFINITY {
+                return Err(PhriError::invalid(
+                    "lower",
+                    format!("[{i}] = {lo} and upper[{i}] = {hi} leave no finite weight between them"),
+                ));
+            }
         }
-        if let Some((i, v)) = params.ranges.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v > 0.0)) {
-            return Err(PhriError::invalid("ranges", format!("[{i}] must be finite and > 0, got {v}")));
+        if let Some((i, v)) =
+            params.ranges.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v > 0.0 && (1.0 / **v).is_finite()))
+        {
+            return Err(PhriError::invalid("ranges", format!("[{i}] must be finite and > 0 (with a finite inverse), got {v}")));
         }
         Ok(WeightUpdate { params })
     }
@@ -137,14 +146,21 @@ impl WeightUpdate {
             }
             _ => None,
         };
+        let moves = |i: usize| p.learned[i] && (p.rule != UpdateRule::Max || chosen == Some(i));
+        let target = |i: usize, w: f64| w - p.step[i] * relevance.map_or(1.0, |r| r[i].clamp(0.0, 1.0)) * delta_phi[i];
+        if let Some(i) = (0..k).find(|&i| moves(i) && !target(i, weights[i]).is_finite()) {
+            // Checked before any weight moves, so an error leaves the weights as they were.
+            return Err(PhriError::invalid(
+                "delta_phi",
+                format!("[{i}] = {:e} times step {:e} overflows the weight (non-finite)", delta_phi[i], p.step[i]),
+            ));
+        }
         let mut info = UpdateInfo { chosen, clipped: false, max_change: 0.0 };
         for i in 0..k {
-            let moves = p.learned[i] && (p.rule != UpdateRule::Max || chosen == Some(i));
-            if !moves {
+            if !moves(i) {
                 continue;
             }
-            let scale = relevance.map_or(1.0, |r| r[i].clamp(0.0, 1.0));
-            let target = weights[i] - p.step[i] * scale * delta_phi[i];
+            let target = target(i, weights[i]);
             let new = target.clamp(p.lower[i], p.upper[i]);
             info.clipped |= new != target;
             info.max_change = info.max_change.max((new - weights[i]).abs());

@@ -265,3 +265,75 @@ fn the_keepout_skip_changes_nothing() {
     }
     assert!(checked > 20, "too few segments entered a circle ({checked})");
 }
+
+/// A feature written outside the crate, as the module docs describe: the squared height of link_7
+/// above 0.3 m, φ = (z − 0.3)² at q_i, with its gradient 2(z − 0.3)·∂z/∂q_i and, when asked, the
+/// Gauss–Newton curvature 2·∇z∇zᵀ.
+#[derive(Clone)]
+struct HeightAbove;
+
+impl phri_core::features::Feature for HeightAbove {
+    fn name(&self) -> &str {
+        "height_above"
+    }
+    fn segment(&self, seg: &mut phri_core::features::Segment<'_>, grad: Option<phri_core::features::SegmentGrad<'_>>) -> f64 {
+        let dz = seg.point(1.0).position.z - 0.3;
+        if let Some(g) = grad {
+            let jac = seg.jacobian(1.0).clone();
+            for j in 0..g.this.len() {
+                g.this[j] += g.scale * 2.0 * dz * jac[(2, j)];
+            }
+            if let Some(h) = g.hessian {
+                h.add_outer(1.0, 2.0 * g.scale, |j| jac[(2, j)]);
+            }
+        }
+        dz * dz
+    }
+}
+
+#[test]
+fn a_feature_written_outside_the_crate_is_counted_differentiated_and_optimised() {
+    use phri_core::features::{Efficiency, Feature};
+    use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
+    let model = Arc::new(jaco2());
+    let frame = model.frame_id("j2s7s300_link_7").unwrap();
+    let features: Vec<Box<dyn Feature>> = vec![Box::new(Efficiency), Box::new(HeightAbove)];
+    let mut fs = FeatureSet::new(model.clone(), frame, features).unwrap();
+    let a = deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);
+    let b = deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]);
+    let xi = trajectory(&a, &b, 9, 0.3);
+    // Φ sums φ over waypoints 1..N-1.
+    let mut phi = [0.0; 2];
+    fs.phi(&xi, &mut phi).unwrap();
+    let mut d = model.data();
+    let mut expected = 0.0;
+    for i in 1..9 {
+        model.forward_kinematics(&xi[i * 7..(i + 1) * 7], &mut d).unwrap();
+        expected += (model.frame_pose(frame, &d).translation.z - 0.3).powi(2);
+    }
+    assert!((phi[1] - expected).abs() < 1e-12, "{} vs {expected}", phi[1]);
+    // Its gradient matches finite differences.
+    let w = [0.0, 1.0];
+    let mut grad = vec![0.0; xi.len()];
+    fs.weighted_cost_gradient(&xi, &w, &mut grad).unwrap();
+    for v in 7..xi.len() - 7 {
+        let (mut up, mut down) = (xi.clone(), xi.clone());
+        up[v] += 1e-6;
+        down[v] -= 1e-6;
+        let (mut g0, mut p0, mut p1) = (vec![0.0; xi.len()], 0.0, 0.0);
+        p1 += fs.weighted_cost_gradient(&up, &w, &mut g0).unwrap();
+        p0 += fs.weighted_cost_gradient(&down, &w, &mut g0).unwrap();
+        let fd = (p1 - p0) / 2e-6;
+        assert!((fd - grad[v]).abs() < 1e-6 * (1.0 + fd.abs()), "entry {v}: fd {fd} vs {}", grad[v]);
+    }
+    // And the optimiser lowers it against the plan that ignores it.
+    let mut opt = TrajectoryOptimizer::new(&fs, 9, TrajoptParams::default()).unwrap();
+    let (mut with, mut without) = (vec![0.0; xi.len()], vec![0.0; xi.len()]);
+    let info = opt.solve(&mut fs, &[1.0, 5.0], &a, &b, None, &mut with).unwrap();
+    opt.solve(&mut fs, &[1.0, 0.0], &a, &b, None, &mut without).unwrap();
+    let (mut pw, mut po) = ([0.0; 2], [0.0; 2]);
+    fs.phi(&with, &mut pw).unwrap();
+    fs.phi(&without, &mut po).unwrap();
+    assert!(info.converged, "{info:?}");
+    assert!(pw[1] < po[1] - 1e-3, "the custom feature did not drop: {} vs {}", pw[1], po[1]);
+}

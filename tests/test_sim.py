@@ -3,12 +3,27 @@ and the paper's result — learning beats impedance on every task — with a fix
 
 from __future__ import annotations
 
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 import phri
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
-from phri.sim import EpisodeConfig, ParticipantParams, Planner, World, run_episode
+from phri.sim import (
+    LATER_THRESHOLDS,
+    ORIGINAL_THRESHOLDS,
+    EpisodeConfig,
+    Participant,
+    ParticipantParams,
+    Planner,
+    World,
+    WorldParams,
+    run_episode,
+)
 from phri.sim.world import HAND
 
 NOBODY = ParticipantParams(tolerance=1e9, tilt_tolerance=1e9)
@@ -238,5 +253,198 @@ def test_the_demo_writes_its_table_figures_frames_and_logs(tmp_path, capsys) -> 
         assert (result.folder / name).is_file()
     assert len(list((result.folder / "frames").glob("*.png"))) == 32
     assert len(list((result.folder / "logs").glob("*.npz"))) == 8
+    with open(result.folder / "summary.csv", newline="") as f:
+        assert len(list(csv.DictReader(f))) == 8
     again = run_demo(out, seed=7, frames=False)
     assert again.folder != result.folder, "a second run must not overwrite the first"
+
+
+def test_the_person_draws_the_same_noise_whatever_the_sensor_draws(world, tmp_path) -> None:
+    """The participant and the sensor have their own random streams: under impedance (which only
+    records what it measures) a sensor that draws less often (no noise, a lower sample rate) or more
+    often leaves the person's pushes, noise included, unchanged for the same seed."""
+    short = shortened(phri.load_task("table"), 3.0, 7)
+    planner = Planner(short, world)
+    person = ParticipantParams(tolerance=0.005, delay=0.05, noise=3.0)
+    pushes, measured = [], []
+    for noise, rate in ((0.5, 10.0), (0.0, 10.0), (0.5, 100.0)):
+        path = tmp_path / f"sensor-{noise}-{rate}.npz"
+        config = EpisodeConfig(strategy="impedance", sensor_noise=noise, sample_rate=rate)
+        run_episode(short, world, person, config, seed=5, planner=planner, log_path=path)
+        with np.load(path) as log:
+            pushes.append(log["push"])
+            measured.append(log["u_h"])
+    assert np.count_nonzero(np.any(pushes[0] != 0, axis=1)) > 10, "the person never pushed"
+    for other in pushes[1:]:
+        np.testing.assert_array_equal(pushes[0], other)
+    assert not np.array_equal(measured[0], measured[1]) and not np.array_equal(measured[0], measured[2])
+
+
+@pytest.mark.parametrize("feature", ["table", "coffee"])
+def test_a_push_with_its_noise_never_exceeds_the_persons_maximum(world, feature) -> None:
+    task = phri.load_task("table")
+    desired = phri.TimedTrajectory(np.array([task.start, task.start]), 1.0)
+    params = ParticipantParams(delay=0.0, noise=20.0, max_force=30.0, max_torque=4.0)
+    person = Participant(params, desired, feature, world.model, np.random.default_rng(0))
+    direction = np.array([0.0, 0.6, 0.8])
+    person.error = lambda t, q: (1.0, direction)  # far beyond the tolerance: a saturated push
+    pushes = [person.wrench(0.01 * k, task.start) for k in range(200)]
+    force, torque = (np.array([p[i] for p in pushes]) for i in (0, 1))
+    push, limit = (torque, params.max_torque) if feature == "coffee" else (force, params.max_force)
+    norms = np.linalg.norm(push, axis=1)
+    assert norms.max() <= limit * (1 + 1e-12), f"a push of {norms.max():.2f} over the maximum {limit}"
+    np.testing.assert_allclose(norms, limit)  # saturated every time, in a noisy direction
+    assert np.std(push @ direction) > 0 and (push @ direction).min() > 0
+
+
+def test_the_detectors_thresholds_and_bias_are_configurable(world) -> None:
+    short = shortened(phri.load_task("table"), 1.0, 5)
+    planner = Planner(short, world)
+
+    def interaction_time(**kwargs) -> float:
+        config = EpisodeConfig(strategy="impedance", sensor_noise=0.0, **kwargs)
+        return run_episode(short, world, NOBODY, config, planner=planner).interaction_time
+
+    six = (6.0, 0, 0, 0, 0, 0, 0)  # below the original threshold of joint 1 (8), above the later (4)
+    assert interaction_time(sensor_bias=six) == 0.0
+    assert interaction_time(sensor_bias=six, thresholds=ORIGINAL_THRESHOLDS) == 0.0
+    assert interaction_time(sensor_bias=six, thresholds=LATER_THRESHOLDS) == pytest.approx(1.1)  # 11 samples
+    ten = (10.0, 0, 0, 0, 0, 0, 0)
+    assert interaction_time(sensor_bias=ten) == pytest.approx(1.1)
+    assert interaction_time(sensor_bias=ten, detector_bias=ten) == 0.0  # a calibrated sensor
+    assert EpisodeConfig(thresholds=np.array(LATER_THRESHOLDS)).thresholds == LATER_THRESHOLDS
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"sensor_bias": (0.5,)}, r"sensor_bias must have one value per joint \(7\) \[N·m\], got 1"),
+        ({"sensor_bias": (0.0,) * 8}, r"sensor_bias must have one value per joint"),
+        ({"sensor_bias": (0.0,) * 6 + (float("nan"),)}, r"sensor_bias\[6\] must be finite"),
+        ({"sensor_bias": "biased"}, r"sensor_bias must be 7 numbers"),
+        ({"thresholds": (8.0, 8.0)}, r"thresholds must have one value per joint \(7\)"),
+        ({"thresholds": (8, 8, 8, 0, 1, 1, 1)}, r"thresholds\[3\] must be finite and > 0 \[N·m\], got 0"),
+        ({"thresholds": (8, 8, 8, 2, 1, 1, -1)}, r"thresholds\[6\] must be finite and > 0"),
+        ({"thresholds": (8, 8, 8, 2, 1, 1, float("inf"))}, r"thresholds\[6\] must be finite"),
+        ({"detector_bias": (1.0,) * 3}, r"detector_bias must have one value per joint"),
+        ({"detector_bias": (float("nan"),) * 7}, r"detector_bias\[0\] must be finite"),
+    ],
+)
+def test_bad_per_joint_settings_are_a_clear_error(kwargs, match) -> None:
+    with pytest.raises(InvalidParameterError, match=match):
+        EpisodeConfig(**kwargs)
+
+
+def test_rates_must_be_a_whole_number_of_simulator_steps(world) -> None:
+    with pytest.raises(
+        InvalidParameterError, match=r"sample_rate = 300 Hz .* nearby valid rates: 333.333 Hz, 250 Hz"
+    ):
+        EpisodeConfig(sample_rate=300)
+    with pytest.raises(
+        InvalidParameterError, match=r"log_rate = 300 Hz .* nearby valid rates: 333.333 Hz, 250 Hz"
+    ):
+        EpisodeConfig(log_rate=300)
+    with pytest.raises(
+        InvalidParameterError, match=r"0.3 Hz .* period is 3333.33 steps.* rates: 0.30003 Hz, 0.29994 Hz"
+    ):
+        EpisodeConfig(sample_rate=0.3)
+    for rate in (0.5, 10, 250, 1000 / 3, 1000):
+        EpisodeConfig(sample_rate=rate, log_rate=rate)
+    # Against the world's own rate: 1000 Hz is no whole number of 2 ms steps.
+    short = shortened(phri.load_task("table"), 1.0, 5)
+    with World(params=WorldParams(timestep=2e-3)) as slow:
+        with pytest.raises(
+            InvalidParameterError, match=r"sample_rate = 1000 Hz .* nearby valid rates: 500 Hz"
+        ):
+            run_episode(short, slow, NOBODY, EpisodeConfig(sample_rate=1000))
+        with pytest.raises(InvalidParameterError, match=r"log_rate = 1000 Hz .* nearby valid rates: 500 Hz"):
+            run_episode(short, slow, NOBODY, EpisodeConfig(log_rate=1000))
+    # The interaction time counts samples at the rate they were taken at.
+    config = EpisodeConfig(
+        strategy="impedance", sample_rate=250, sensor_noise=0.0, sensor_bias=(10.0,) + (0,) * 6
+    )
+    r = run_episode(short, world, NOBODY, config)
+    assert r.interaction_time == pytest.approx(251 / 250)
+
+
+def test_pybullet_prints_nothing_into_the_output() -> None:
+    code = "import phri.sim.world as w; print('a'); W = w.World(); print('b'); W.close()"
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout == "a\nb\n"
+    assert "pybullet build time" not in done.stderr
+
+
+def test_demo_into_an_existing_file_is_a_clear_error_before_any_episode(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    import phri.cli
+    import phri.demo
+
+    def no_world(*args, **kwargs):
+        raise AssertionError("the demo started simulating")
+
+    monkeypatch.setattr(phri.demo, "World", no_world)
+    file = tmp_path / "results.txt"
+    file.write_text("keep me")
+    for out in (file, file / "demo"):
+        assert phri.cli.main(["demo", "--out", str(out), "--no-frames"]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == ""
+        assert captured.err.startswith(f"phri demo: error: --out {out} is ")
+        assert "a file" in captured.err
+    assert file.read_text() == "keep me"
+    assert sorted(tmp_path.iterdir()) == [file]
+
+
+@pytest.fixture
+def short_demo(monkeypatch):
+    """The demo on two study tasks cut to 2 s."""
+    import phri.demo
+
+    monkeypatch.setattr(phri.demo, "STUDY_TASKS", ("table", "coffee"))
+    monkeypatch.setattr(phri.demo, "load_task", lambda name: shortened(phri.load_task(name), 2.0, 5))
+    return phri.demo
+
+
+def test_the_demo_keeps_to_each_tasks_duration(short_demo, tmp_path, monkeypatch) -> None:
+    import matplotlib.figure
+
+    plotted: dict[str, list[float]] = {}
+    savefig = matplotlib.figure.Figure.savefig
+
+    def recording_savefig(fig, path, *args, **kwargs):
+        plotted[Path(path).name] = [float(np.max(line.get_xdata())) for line in fig.axes[-1].lines]
+        return savefig(fig, path, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", recording_savefig)
+    result = short_demo.run_demo(tmp_path / "demo", seed=7)
+    for task in ("table", "coffee"):
+        for strategy in ("impedance", "learning"):
+            frames = sorted(p.name for p in (result.folder / "frames").glob(f"{task}_{strategy}_t*.png"))
+            assert frames == [f"{task}_{strategy}_t{t}.png" for t in ("00.00", "00.67", "01.33", "02.00")]
+        # The time axes of the path and the weight figures end with the task.
+        assert plotted[f"path_{task}.png"] == [2.0, 2.0, 2.0]
+        assert max(plotted[f"weights_{task}.png"]) == 2.0
+
+
+def test_an_interrupted_demo_keeps_the_rows_of_the_episodes_it_finished(
+    short_demo, tmp_path, monkeypatch
+) -> None:
+    run, calls = short_demo.run_episode_for_demo, {"n": 0}
+
+    def interrupted(*args):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return run(*args)
+
+    monkeypatch.setattr(short_demo, "run_episode_for_demo", interrupted)
+    out = tmp_path / "demo"
+    with pytest.raises(KeyboardInterrupt):
+        short_demo.run_demo(out, seed=7, frames=False)
+    with open(out / "summary.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["task"], r["strategy"]) for r in rows] == [("table", "impedance"), ("table", "learning")]
+    assert float(rows[1]["effort"]) >= 0

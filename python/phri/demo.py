@@ -15,17 +15,33 @@ from pathlib import Path
 import numpy as np
 
 from phri.config import STUDY_TASKS, load_task
+from phri.exceptions import InvalidParameterError
 from phri.sim import STRATEGIES, EpisodeConfig, EpisodeResult, ParticipantParams, Planner, World, WorldParams
 
-__all__ = ["fresh_folder", "run_demo"]
+__all__ = ["fresh_folder", "frame_times", "run_demo"]
 
-FRAME_TIMES = (0.0, 5.0, 10.0, 15.0)  # s
+#: Frames rendered per episode, evenly spaced from the start to the end of the task.
+FRAMES = 4
+
+
+def frame_times(duration: float) -> tuple[float, ...]:
+    """The times [s] of an episode's frames for a task lasting `duration` [s]."""
+    return tuple(float(t) for t in np.linspace(0.0, duration, FRAMES))
+
+
+def check_out(path: Path) -> None:
+    """Raises InvalidParameterError naming --out unless `path` can be (or hold) the output folder."""
+    for p in (path, *path.parents):
+        if p.exists() and not p.is_dir():
+            what = "is a file" if p == path else f"is inside {p}, a file"
+            raise InvalidParameterError(f"--out {path} {what}; give a folder (a new one or an existing one)")
 
 
 def fresh_folder(path: Path) -> Path:
-    """`path` if it is new or empty, else the first free `path-2`, `path-3`, ...: never overwrite."""
+    """`path` if it is new or empty, else the first free `path-2`, `path-3`, ...: never overwrite
+    (a file of such a name is skipped too)."""
     candidate, k = path, 1
-    while candidate.exists() and any(candidate.iterdir()):
+    while candidate.exists() and (not candidate.is_dir() or any(candidate.iterdir())):
         k += 1
         candidate = path.with_name(f"{path.name}-{k}")
     candidate.mkdir(parents=True, exist_ok=True)
@@ -39,7 +55,10 @@ class DemoResult:
     seconds: float
 
 
-def _plot(folder: Path, task: str, results: dict[str, EpisodeResult], true_weight: float) -> list[Path]:
+def _plot(
+    folder: Path, task: str, results: dict[str, EpisodeResult], true_weight: float, duration: float
+) -> list[Path]:
+    """The task's figures; `duration` [s] is the task's."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -61,7 +80,7 @@ def _plot(folder: Path, task: str, results: dict[str, EpisodeResult], true_weigh
     # Fig. 5 right: the hand's path against the desired one.
     fig, (top, side) = plt.subplots(1, 2, figsize=(9, 3.6))
     desired = next(iter(results.values())).desired_path
-    t = np.linspace(0, 15, len(desired))
+    t = np.linspace(0, duration, len(desired))
     top.plot(desired[:, 0], desired[:, 1], "k--", label="desired")
     side.plot(t, desired[:, 2], "k--", label="desired")
     for strategy, r in results.items():
@@ -78,7 +97,7 @@ def _plot(folder: Path, task: str, results: dict[str, EpisodeResult], true_weigh
     # The learned weight over time.
     r = results["learning"]
     with np.load(r.log) as log:
-        wt = np.append(log["weights_t"], 15.0)
+        wt = np.append(log["weights_t"], duration)
         w = np.vstack([log["weights"], log["weights"][-1:]])[:, -1]
     fig, ax = plt.subplots(figsize=(6.4, 3.0))
     ax.step(wt, w, where="post", color=colors["learning"], label="learned")
@@ -95,8 +114,12 @@ def _plot(folder: Path, task: str, results: dict[str, EpisodeResult], true_weigh
 def run_demo(
     out: Path = Path("out/demo"), seed: int = 7, gui: bool = False, frames: bool = True
 ) -> DemoResult:
-    """Runs the demo into a fresh folder next to (or at) `out` and returns what it did."""
+    """Runs the demo into a fresh folder next to (or at) `out` and returns what it did.
+
+    Each episode's row is appended to ``summary.csv`` as soon as it finishes, so an interrupted demo
+    keeps what it did."""
     began = time.perf_counter()
+    check_out(Path(out))
     folder = fresh_folder(Path(out))
     (folder / "logs").mkdir()
     (folder / "frames").mkdir()
@@ -109,7 +132,8 @@ def run_demo(
     print(f"phri demo: one simulated participant ({participant}), output in {folder}")
     print(header)
     print("-" * len(header))
-    with World(params=WorldParams(gui=gui)) as world:
+    summary: csv.DictWriter | None = None
+    with World(params=WorldParams(gui=gui)) as world, open(folder / "summary.csv", "x", newline="") as f:
         for task_name in STUDY_TASKS:
             task = load_task(task_name)
             planner = Planner(task, world)
@@ -118,16 +142,17 @@ def run_demo(
                 r = run_episode_for_demo(task, world, participant, strategy, planner, folder, seed, frames)
                 per_task[strategy] = r
                 results.append(r)
+                if summary is None:
+                    summary = csv.DictWriter(f, fieldnames=list(r.row()))
+                    summary.writeheader()
+                summary.writerow(r.row())
+                f.flush()
                 print(
                     f"{task_name:<8} {strategy:<10} {r.effort:>9.1f} {r.interaction_time:>6.1f} "
                     f"{r.cost:>8.3f} "
                     f"{r.desired_cost:>8.3f} {r.final_weights[task.task_index]:>7.3f} {r.wall_time:>6.2f}"
                 )
-            _plot(folder, task_name, per_task, float(task.vector("true")[task.task_index]))
-    with open(folder / "summary.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(results[0].row()))
-        writer.writeheader()
-        writer.writerows(r.row() for r in results)
+            _plot(folder, task_name, per_task, float(task.vector("true")[task.task_index]), task.duration)
     seconds = time.perf_counter() - began
     print(
         f"\nwrote {folder}/summary.csv, figures force_*.png path_*.png weights_*.png, frames/, logs/ "
@@ -142,5 +167,6 @@ def run_episode_for_demo(task, world, participant, strategy, planner, folder, se
     return run_episode(
         task, world, participant, EpisodeConfig(strategy=strategy), seed=seed, planner=planner,
         log_path=folder / "logs" / f"{task.name}_{strategy}.npz",
-        frame_times=FRAME_TIMES if frames else (), frame_prefix=folder / "frames" / f"{task.name}_{strategy}",
+        frame_times=frame_times(task.duration) if frames else (),
+        frame_prefix=folder / "frames" / f"{task.name}_{strategy}",
     )  # fmt: skip

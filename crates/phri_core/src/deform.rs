@@ -43,7 +43,10 @@
 //! window ended on it; phri is one waypoint stricter.
 //!
 //! **Numerics.** R is factored once, R = L·D·Lᵀ with unit lower-banded L, by a hand-written banded
-//! LDLᵀ (faer has no banded solver; the factorisation is about 40 lines). R is Toeplitz, so the
+//! LDLᵀ (the factorisation is about 40 lines). faer, the maintained alternative, factors R in f64
+//! only: measured on a 10,000-waypoint window its H is off by 1.1·10⁻⁴ relative (phri 2.3·10⁻¹⁵)
+//! and its per-correction solve takes 110 µs against phri's 15.5 µs for the whole correction
+//! (`cargo bench -p phri_benches --bench linalg`). R is Toeplitz, so the
 //! m×m system of a shrunk window is R's leading block and its factor is the leading block of L and
 //! D: one factor serves every m ≤ n, and a shrunk window costs an O(m) back substitution, done
 //! twice (once for ‖x‖, once to apply) so that `deform_in_place` needs neither `&mut self` nor

@@ -17,11 +17,11 @@ use std::sync::Arc;
 
 use nalgebra::{Matrix3, Matrix6xX, Vector2, Vector3};
 
+use crate::block_tridiagonal::BlockTridiagonal;
 use crate::data::RobotData;
 use crate::error::{check_finite, PhriError, Result};
 use crate::kinematics::{direction_hessian, position_hessian};
 use crate::model::{FrameId, JointKind, RobotModel};
-use crate::trajopt::BlockTridiagonal;
 
 /// Kinematics of the feature frame (link_7 by default) at one configuration.
 #[derive(Debug, Clone, Copy)]

@@ -5,6 +5,7 @@ only complies (the impedance baseline). Scored as the study scored it (original_
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Sequence
@@ -27,9 +28,17 @@ from phri._phri import (
 from phri.config import Task
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.participant import Participant, ParticipantParams
-from phri.sim.world import HAND, World
+from phri.sim.world import HAND, World, WorldParams
 
-__all__ = ["STRATEGIES", "EpisodeConfig", "EpisodeResult", "Planner", "run_episode"]
+__all__ = [
+    "LATER_THRESHOLDS",
+    "ORIGINAL_THRESHOLDS",
+    "STRATEGIES",
+    "EpisodeConfig",
+    "EpisodeResult",
+    "Planner",
+    "run_episode",
+]
 
 STRATEGIES = ("impedance", "learning")
 #: The tool point stays this far above the table top (the original kept a finger above z = 0) [m].
@@ -42,6 +51,15 @@ VELOCITY_MARGIN = 0.5
 STEP_TOLERANCE = 0.05
 #: A plan may dip below its clearance by this much (the penalty's documented tolerance) [m].
 CLEARANCE_TOLERANCE = 1e-3
+#: The JACO2's joint count: the length of every per-joint setting below.
+JOINTS = 7
+#: The study's interaction thresholds, joints 1..7 [N·m] (the detector's default).
+ORIGINAL_THRESHOLDS = (8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0)
+#: The thresholds of the original's later versions, joints 1..7 [N·m] (used there together with a
+#: subtracted per-joint bias: EpisodeConfig.detector_bias).
+LATER_THRESHOLDS = (4.0, 5.0, 3.0, 4.0, 1.5, 1.5, 1.5)
+#: A rate's period may differ from a whole number of simulator steps by this fraction [-].
+RATE_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -53,8 +71,14 @@ class EpisodeConfig:
     sample_rate: float = 10.0
     #: Gaussian noise on the joint-torque measurement, per joint [N·m].
     sensor_noise: float = 0.1
-    #: Constant offset on the measurement [N·m] (None: none); the detector does not know it.
+    #: Constant offset on the measurement, per joint [N·m] (None: none); the detector does not know it.
     sensor_bias: tuple[float, ...] | None = None
+    #: The interaction detector's per-joint thresholds [N·m] (None: ORIGINAL_THRESHOLDS, the study's
+    #: 8, 8, 8, 2, 1, 1, 1; LATER_THRESHOLDS are the original's later ones).
+    thresholds: tuple[float, ...] | None = None
+    #: The per-joint bias the detector subtracts from each measurement before thresholding [N·m]
+    #: (None: none); set it to sensor_bias for a calibrated sensor.
+    detector_bias: tuple[float, ...] | None = None
     #: Update rule: "all" (the paper), "max", or "confidence".
     rule: str = "all"
     #: Time-series log rate [Hz].
@@ -71,6 +95,9 @@ class EpisodeConfig:
             raise InvalidParameterError(f"sample_rate must be in (0, 1000] Hz, got {self.sample_rate}")
         if not 0 < self.log_rate <= 1000:
             raise InvalidParameterError(f"log_rate must be in (0, 1000] Hz, got {self.log_rate}")
+        # Against the default simulator rate here; run_episode checks against the world's own.
+        steps_per_period("sample_rate", self.sample_rate, WorldParams().timestep)
+        steps_per_period("log_rate", self.log_rate, WorldParams().timestep)
         if not self.sensor_noise >= 0:
             raise InvalidParameterError(f"sensor_noise must be >= 0 N·m, got {self.sensor_noise}")
         if not 0 <= self.transition_speed <= 1:
@@ -78,6 +105,45 @@ class EpisodeConfig:
                 "transition_speed must be a fraction of the velocity limits in [0, 1], "
                 f"got {self.transition_speed}"
             )
+        for key, positive in (("sensor_bias", False), ("thresholds", True), ("detector_bias", False)):
+            value = getattr(self, key)
+            if value is not None:
+                object.__setattr__(self, key, _per_joint(key, value, positive))
+
+
+def _per_joint(name: str, value: Sequence[float], positive: bool) -> tuple[float, ...]:
+    """`value` as a tuple of JOINTS finite floats (> 0 if `positive`), else an error naming `name`."""
+    try:
+        v = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(
+            f"{name} must be {JOINTS} numbers [N·m] (one per joint) or None, got {value!r}"
+        ) from None
+    if len(v) != JOINTS:
+        raise InvalidParameterError(
+            f"{name} must have one value per joint ({JOINTS}) [N·m], got {len(v)}: {value!r}"
+        )
+    for j, x in enumerate(v):
+        if not math.isfinite(x) or (positive and x <= 0):
+            want = "finite and > 0" if positive else "finite"
+            raise InvalidParameterError(f"{name}[{j}] must be {want} [N·m], got {x}")
+    return v
+
+
+def steps_per_period(name: str, rate: float, dt: float) -> int:
+    """The whole number of simulator steps of `dt` [s] in one period of `rate` [Hz], else an
+    InvalidParameterError naming `name` and the nearby rates that are whole numbers of steps."""
+    steps = 1.0 / (rate * dt)
+    whole = round(steps)
+    if whole >= 1 and abs(steps - whole) <= RATE_TOLERANCE * steps:
+        return int(whole)
+    nearby = sorted({max(1, math.floor(steps)), max(1, math.ceil(steps))})
+    listed = ", ".join(f"{1.0 / (n * dt):g} Hz" for n in nearby)
+    raise InvalidParameterError(
+        f"{name} = {rate:g} Hz is not a whole number of simulator steps of {dt:g} s "
+        f"(its period is {steps:.6g} steps, the simulator runs at {1.0 / dt:g} Hz); "
+        f"nearby valid rates: {listed}"
+    )
 
 
 @dataclass
@@ -206,15 +272,28 @@ def run_episode(
     ``{frame_prefix}_t{t:05.2f}.png`` with PyBullet's software renderer."""
     config = config or EpisodeConfig()
     began = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    planner = planner or Planner(task, world)
+    dt = world.params.timestep
+    sample_every = steps_per_period("sample_rate", config.sample_rate, dt)
+    log_every = steps_per_period("log_rate", config.log_rate, dt)
     model = world.model
+    for key in ("sensor_bias", "thresholds", "detector_bias"):
+        value = getattr(config, key)
+        if value is not None and len(value) != model.nq:
+            raise InvalidParameterError(f"{key} must have one value per joint ({model.nq}), got {len(value)}")
+    # Independent streams for the person and the sensor: the same seed gives the same person (their
+    # own draws) whatever the sensor does, e.g. under both strategies or another sensor_noise.
+    person_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    planner = planner or Planner(task, world)
     update = WeightUpdate(
         task.vector("step"), task.vector("lower"), task.vector("upper"),
         learned=[f.learned for f in task.features], rule=config.rule,
     )  # fmt: skip
+    detector = InteractionDetector(
+        ORIGINAL_THRESHOLDS if config.thresholds is None else config.thresholds,
+        None if config.detector_bias is None else config.detector_bias,
+    )
     learner = Learner(
-        planner.features, Deformation(), update, InteractionDetector(), planner.optimizer,
+        planner.features, Deformation(), update, detector, planner.optimizer,
         task.vector("initial"), task.start, task.goal,
         duration=task.duration, sample_period=1.0 / config.sample_rate,
         learning=config.strategy == "learning", transition_speed=config.transition_speed,
@@ -222,13 +301,10 @@ def run_episode(
     initial_weights = learner.weights
     controller = ImpedanceController(model)
     desired = TimedTrajectory(planner.desired, task.duration)
-    person = Participant(participant_params, desired, task.task_feature, model, rng, dt=world.params.timestep)
+    person = Participant(participant_params, desired, task.task_feature, model, person_rng, dt=dt)
     bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
 
-    dt = world.params.timestep
     steps = int(round(task.duration / dt)) + 1
-    sample_every = max(1, int(round(1.0 / (config.sample_rate * dt))))
-    log_every = max(1, int(round(1.0 / (config.log_rate * dt))))
     rows = (steps + log_every - 1) // log_every
     log = {k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")}
     #: The person's wrench at the hand (force [N], torque [N·m]); zero while nobody touches it.
@@ -250,7 +326,7 @@ def run_episode(
             push = person.wrench(t, q)
             if k % sample_every == 0:
                 measured = (
-                    bias + rng.normal(0.0, config.sensor_noise, model.nq)
+                    bias + sensor_rng.normal(0.0, config.sensor_noise, model.nq)
                     if config.sensor_noise
                     else bias.copy()
                 )

@@ -7,8 +7,9 @@ Behaviour, every control tick:
   table, laptop, human) or the excess tilt of the cup over the desired tilt (coffee).
 - When the error has stayed above ``tolerance`` for ``delay`` seconds, the participant grabs the hand
   and applies a corrective wrench: force ``stiffness · error`` toward the desired position (or torque
-  ``rotational_stiffness · tilt`` righting the cup), saturated at ``max_force`` / ``max_torque``, plus
-  Gaussian noise of standard deviation ``noise`` (per axis, in N or N·m).
+  ``rotational_stiffness · tilt`` righting the cup) plus Gaussian noise of standard deviation ``noise``
+  (per axis, in N; a tenth of it in N·m for torques), the sum saturated in norm at ``max_force`` /
+  ``max_torque``.
 - They let go when the error falls below ``release · tolerance`` (hysteresis).
 - They re-judge at ``rate`` (100 Hz) and hold the push in between.
 
@@ -137,9 +138,15 @@ class Participant:
             self.over_since = None
         if not self.pushing:
             return None
+        # The noise is part of the push, so the push (noise included) is what saturates.
         if self.rotational:
-            torque = direction * min(p.rotational_stiffness * size, p.max_torque)
-            torque = torque + self.rng.normal(0.0, 0.1 * p.noise, 3)
-            return np.zeros(3), torque
-        force = direction * min(p.stiffness * size, p.max_force) + self.rng.normal(0.0, p.noise, 3)
-        return force, np.zeros(3)
+            torque = direction * p.rotational_stiffness * size + self.rng.normal(0.0, 0.1 * p.noise, 3)
+            return np.zeros(3), _saturate(torque, p.max_torque)
+        force = direction * p.stiffness * size + self.rng.normal(0.0, p.noise, 3)
+        return _saturate(force, p.max_force), np.zeros(3)
+
+
+def _saturate(v: np.ndarray, limit: float) -> np.ndarray:
+    """`v` scaled down, keeping its direction, to a norm of at most `limit`."""
+    norm = math.sqrt(float(v @ v))
+    return v * (limit / norm) if norm > limit else v

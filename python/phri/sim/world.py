@@ -7,11 +7,14 @@ mode unless ``gui=True``. Pictures come from PyBullet's software renderer (no di
 
 from __future__ import annotations
 
+import ctypes
 import math
 import os
 import sys
 import tempfile
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -41,19 +44,52 @@ class WorldParams:
     joint_damping: float = 0.0  # N·m·s/rad of viscous friction in every joint (0 = ideal arm)
 
 
-def _pybullet():
-    """pybullet, imported without the "pybullet build time" line its C code prints to stdout."""
-    if "pybullet" in sys.modules:
-        return sys.modules["pybullet"]
-    sys.stdout.flush()
-    saved = os.dup(1)
+def _flush_all() -> None:
+    """Flushes Python's and the C library's buffered standard output and error."""
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # a closed or broken stream: nothing to keep in order
+                pass
+    try:
+        ctypes.CDLL(None).fflush(None)  # every C stdio stream
+    except (OSError, AttributeError, TypeError):  # no C library to reach (e.g. Windows)
+        pass
+
+
+@contextmanager
+def _quiet_c_output() -> Iterator[None]:
+    """Sends what C code writes to file descriptors 1 and 2 to the null device meanwhile.
+
+    Both Python's and C's buffers are flushed before the switch (so earlier output keeps its place)
+    and again before switching back (so what was written meanwhile is dropped, not delayed)."""
+    _flush_all()
+    saved: list[tuple[int, int]] = []
     try:
         with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), 1)
-            import pybullet
+            for fd in (1, 2):
+                try:
+                    saved.append((fd, os.dup(fd)))
+                except OSError:  # a closed descriptor: nothing to protect
+                    continue
+                os.dup2(devnull.fileno(), fd)
+            try:
+                yield
+            finally:
+                _flush_all()
     finally:
-        os.dup2(saved, 1)
-        os.close(saved)
+        for fd, copy in saved:
+            os.dup2(copy, fd)
+            os.close(copy)
+
+
+def _pybullet():
+    """pybullet, imported without the "pybullet build time" line its C code prints."""
+    if "pybullet" in sys.modules:
+        return sys.modules["pybullet"]
+    with _quiet_c_output():
+        import pybullet
     return pybullet
 
 

@@ -231,6 +231,31 @@ def test_an_episode_places_the_objects_where_its_task_file_says(world) -> None:
     np.testing.assert_allclose(laptop[:2], (-0.7929, 0.0))
 
 
+@pytest.mark.parametrize(
+    ("make", "pattern"),
+    [
+        (lambda: ParticipantParams(rate=0.0), "rate must be a finite rate > 0 Hz"),
+        (lambda: ParticipantParams(noise=-1.0), "noise must be a finite value >= 0"),
+        (lambda: ParticipantParams(max_force=float("nan")), "max_force must be a finite value >= 0"),
+        (lambda: ParticipantParams(release=1.5), "release must be a fraction of the tolerance"),
+        (lambda: EpisodeConfig(sensor_noise=float("inf")), "sensor_noise must be a finite value"),
+        (lambda: EpisodeConfig(rule="MAX"), "rule must be one of"),
+    ],
+)
+def test_bad_participant_and_episode_settings_are_clear_errors(make, pattern) -> None:
+    with pytest.raises(InvalidParameterError, match="^" + pattern):
+        make()
+
+
+def test_the_result_row_reports_the_task_features_weight(world) -> None:
+    table = shortened(phri.load_task("table"), 1.0, 5)
+    task = phri.Task(**{**table.__dict__, "features": table.features[::-1]})  # the task feature first
+    assert task.task_index == 0
+    r = run_episode(task, world, NOBODY, EpisodeConfig(strategy="impedance"))
+    assert r.task_index == 0
+    assert r.row()["final_weight"] == r.final_weights[0] == task.vector("initial")[0]
+
+
 def test_participants_are_drawn_reproducibly_from_documented_ranges() -> None:
     from phri.sim import DISTRIBUTIONS
 

@@ -41,6 +41,8 @@ __all__ = [
 ]
 
 STRATEGIES = ("impedance", "learning")
+#: Update rules of phri.WeightUpdate.
+RULES = ("all", "max", "confidence")
 #: The tool point stays this far above the table top (the original kept a finger above z = 0) [m].
 HAND_CLEARANCE = 0.1016
 #: link_7's origin (the cup) stays this far above the table top [m].
@@ -98,8 +100,12 @@ class EpisodeConfig:
         # Against the default simulator rate here; run_episode checks against the world's own.
         steps_per_period("sample_rate", self.sample_rate, WorldParams().timestep)
         steps_per_period("log_rate", self.log_rate, WorldParams().timestep)
-        if not self.sensor_noise >= 0:
-            raise InvalidParameterError(f"sensor_noise must be >= 0 N·m, got {self.sensor_noise}")
+        if not (math.isfinite(self.sensor_noise) and self.sensor_noise >= 0):
+            raise InvalidParameterError(
+                f"sensor_noise must be a finite value >= 0 N·m, got {self.sensor_noise}"
+            )
+        if self.rule not in RULES:
+            raise InvalidParameterError(f"rule must be one of {RULES}, got {self.rule!r}")
         if not 0 <= self.transition_speed <= 1:
             raise InvalidParameterError(
                 "transition_speed must be a fraction of the velocity limits in [0, 1], "
@@ -162,6 +168,8 @@ class EpisodeResult:
     desired_cost: float
     initial_weights: np.ndarray
     final_weights: np.ndarray
+    #: Index of the task's own feature in the weights (the one the person teaches).
+    task_index: int
     #: Largest distance of the hand from its reference while nobody touches it, at the log rate [m]
     #: (includes the spring-back after a push; see tests for tracking with no participant at all).
     tracking_error: float
@@ -181,7 +189,7 @@ class EpisodeResult:
             "interaction_time": self.interaction_time,
             "cost": self.cost,
             "desired_cost": self.desired_cost,
-            "final_weight": float(self.final_weights[-1]) if self.final_weights.size else float("nan"),
+            "final_weight": float(self.final_weights[self.task_index]),
             "tracking_error": self.tracking_error,
             "wall_time": self.wall_time,
         }
@@ -373,6 +381,7 @@ def run_episode(
         desired_cost=planner.desired_cost,
         initial_weights=initial_weights,
         final_weights=learner.weights,
+        task_index=task.task_index,
         tracking_error=tracking_error,
         wall_time=time.perf_counter() - began,
         executed_path=model.frame_pose(frame, executed)[:, :3, 3],

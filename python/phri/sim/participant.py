@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from phri._phri import Robot, TimedTrajectory
+from phri.exceptions import InvalidParameterError
 
 __all__ = ["DISTRIBUTIONS", "Participant", "ParticipantParams"]
 
@@ -55,6 +56,19 @@ class ParticipantParams:
     noise: float = 1.0
     release: float = 0.4
     rate: float = 100.0  # Hz at which the person re-judges the error and updates their push
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness", "rotational_stiffness", "tolerance", "tilt_tolerance", "delay", "max_force",
+                     "max_torque", "noise"):  # fmt: skip
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise InvalidParameterError(f"{name} must be a finite value >= 0, got {value}")
+        if not 0 <= self.release <= 1:
+            raise InvalidParameterError(
+                f"release must be a fraction of the tolerance in [0, 1], got {self.release}"
+            )
+        if not (math.isfinite(self.rate) and self.rate > 0):
+            raise InvalidParameterError(f"rate must be a finite rate > 0 Hz, got {self.rate}")
 
     @classmethod
     def draw(cls, rng: np.random.Generator) -> ParticipantParams:

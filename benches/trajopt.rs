@@ -16,6 +16,9 @@
 //! {0.1, 0.3} × true; and every observe of 1 s pushes (10 samples at 10 Hz, each an update and a
 //! replan) starting at t = 2, 4, 6, 8 s on fresh learners.
 //!
+//! The last rows repeat the pushes with `LearnerParams::replan_iterations` = 8: every call that does
+//! work (the pushes, and the 1 kHz ticks that go on with an unfinished replan) is timed.
+//!
 //! `cargo bench -p phri_benches --bench trajopt`; under `cargo test --benches` each criterion
 //! benchmark runs once and the timing pass runs one repetition.
 
@@ -90,7 +93,7 @@ fn observe(c: &mut Criterion) {
         let t = 4.0;
         // The first sample of a push on a fresh learner (task weight 0): deform, update, replan.
         let setup = || {
-            let learner = study_learner(&model, &task, 31, 0.1);
+            let learner = study_learner(&model, &task, 31, 0.1, 0);
             let tau = corrective_push(&model, &learner, &task, t);
             (learner, tau)
         };
@@ -182,7 +185,7 @@ fn tails(reps: usize) {
         let mut replans = 0;
         for _ in 0..reps.max(1) {
             for t0 in [2.0, 4.0, 6.0, 8.0] {
-                let mut learner = study_learner(&model, &task, 31, 0.1);
+                let mut learner = study_learner(&model, &task, 31, 0.1, 0);
                 for k in 0..10 {
                     let t = t0 + 0.1 * k as f64;
                     let tau = corrective_push(&model, &learner, &task, t);
@@ -197,7 +200,42 @@ fn tails(reps: usize) {
         observe_all.extend_from_slice(&samples);
     }
     row("observe all tasks", &mut observe_all, "");
+    // The same pushes with a per-call replan budget: the 1 kHz ticks between samples go on with an
+    // unfinished replan, so every call is timed (those that did work), until the plan converges.
+    let mut budget_all = Vec::new();
+    for task in study_tasks() {
+        let mut samples = Vec::new();
+        let mut longest = 0;
+        for _ in 0..reps.max(1) {
+            for t0 in [2.0, 4.0, 6.0, 8.0] {
+                let mut learner = study_learner(&model, &task, 31, 0.1, REPLAN_BUDGET);
+                let mut k = 0usize;
+                let mut pending_ticks = 0;
+                while k < 1000 || learner.replan_pending() {
+                    let t = t0 + 1e-3 * k as f64;
+                    let pushing = k < 1000 && k.is_multiple_of(100); // 10 samples at 10 Hz, as above
+                    let tau = if pushing { corrective_push(&model, &learner, &task, t) } else { [0.0; NQ] };
+                    let began = Instant::now();
+                    let obs = learner.observe(t, &tau).expect("valid sample");
+                    let elapsed = began.elapsed();
+                    if obs.replanned {
+                        samples.push(elapsed);
+                    }
+                    pending_ticks = if learner.replan_pending() { pending_ticks + 1 } else { 0 };
+                    longest = longest.max(pending_ticks);
+                    k += 1;
+                }
+            }
+        }
+        let extra = format!("{} calls that replanned; a replan spans up to {} ticks", samples.len(), longest + 1);
+        row(&format!("observe {} budget {REPLAN_BUDGET}", task.name), &mut samples, &extra);
+        budget_all.extend_from_slice(&samples);
+    }
+    row(&format!("observe all budget {REPLAN_BUDGET}"), &mut budget_all, "");
 }
+
+/// Newton iterations per `observe` call in the budgeted rows (`LearnerParams::replan_iterations`).
+const REPLAN_BUDGET: usize = 8;
 
 fn main() {
     benches();

@@ -499,3 +499,20 @@ def test_history_shapes_and_keys(robot, make):
     assert np.all(learner.plan[0] == PICK_BASIC) and np.all(learner.weights <= 1.0)
     np.testing.assert_array_equal(learner.plans()[0][1][0], PICK_BASIC)
     assert np.all(learner.interactions()[0]["weights"] <= 1.0)
+
+
+def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot):
+    capped, full = make(replan_iterations=2), make()
+    assert not capped.replan_pending
+    tau = push_torque(robot, capped, 4.0)
+    capped.observe(4.0, tau)
+    full.observe(4.0, tau)
+    assert capped.replan_pending, "a push from weight 0 needs more than 2 iterations"
+    assert capped.interactions()[0]["replan"].iterations <= 2
+    ticks = 0
+    while capped.replan_pending:
+        ticks += 1
+        assert ticks < 300
+        assert capped.observe(4.0 + 1e-3 * ticks, np.zeros(7)) == (False, False, True)
+    np.testing.assert_allclose(capped.plan, full.plan, rtol=0, atol=1e-5)
+    assert len(capped.plans()) == ticks + 2

@@ -3,6 +3,7 @@ the backends' agreement, the statistics against hand computations, the report an
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -18,6 +19,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
+import phri.config
 from phri.exceptions import ConfigError, InvalidParameterError, PhriError
 from phri.study import (
     COLUMNS,
@@ -35,8 +37,9 @@ from phri.study import (
     schedule,
     strategy_order,
 )
+from phri.study import run as run_module
 from phri.study.cli import main as cli
-from phri.study.parallel import THREAD_ENV, ProcessBackend
+from phri.study.parallel import THREAD_ENV, ProcessBackend, default_workers, make_backend
 from phri.study.report import _pooled_form, write_report
 
 #: A study small enough for CI: 2 participants × 2 strategies × 2 tasks × 2 attempts = 16 episodes of 8 s
@@ -549,6 +552,52 @@ def test_pool_workers_are_single_threaded() -> None:
     assert envs == [THREAD_ENV, THREAD_ENV]
 
 
+def study_with_a_task_file(folder: Path) -> tuple[StudyConfig, Path]:
+    """TINY with its laptop task read from a copy of the shipped file in `folder` (same rows as TINY's)."""
+    task_file = folder / "laptop.toml"
+    shutil.copyfile(Path(phri.config.__file__).parent / "tasks" / "laptop.toml", task_file)
+    return dataclasses.replace(TINY, tasks=("human", str(task_file))), task_file
+
+
+def reference_rows(reference: Path, keys: list[tuple[int, str, str, int]]) -> pd.DataFrame:
+    """The reference table's rows of the episodes `keys`, in that order, without wall time."""
+    table = table_without_wall_time(reference)
+    rows = table.set_index(["participant", "strategy", "task", "attempt"]).loc[keys].reset_index()
+    return rows[table.columns]
+
+
+@pytest.mark.slow
+def test_pool_workers_run_the_drivers_tasks_and_read_no_task_file(
+    reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The driver loads and checks the task files; the workers get the Task objects. A task file gone
+    once the study started (as on a cluster node without it) changes nothing: the pool, whose workers
+    start with the first episode, after the file is deleted, gives the reference rows."""
+    config, task_file = study_with_a_task_file(tmp_path)
+
+    def make_backend_then_delete_the_task_file(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        backend = make_backend(*args, **kwargs)
+        task_file.unlink()  # loaded by the driver; no worker has started yet
+        return backend
+
+    monkeypatch.setattr(run_module, "make_backend", make_backend_then_delete_the_task_file)
+    run = run_study(tmp_path / "s", config, backend="process", workers=2, progress=False, max_episodes=4)
+    assert not task_file.exists() and run.ran == 4 and run.workers == 2
+    study_with_a_task_file(tmp_path)  # back, for load_results (its schedule reads the task names)
+    table = table_without_wall_time(tmp_path / "s")
+    keys = list(table[["participant", "strategy", "task", "attempt"]].itertuples(index=False, name=None))
+    assert {k[2] for k in keys} == {"human", "laptop"}
+    pd.testing.assert_frame_equal(table, reference_rows(reference, keys))
+
+
+def test_backends_check_the_tasks_they_are_given() -> None:
+    tasks = TINY.load_tasks()
+    for bad in ({"human": "human.toml"}, {"coffee": tasks["human"]}, list(tasks.values())):
+        for backend in ("serial", "process"):
+            with pytest.raises(InvalidParameterError, match=r"^tasks must map each task name to its "):
+                make_backend(backend, TINY, tasks=bad)  # type: ignore[arg-type]
+
+
 @pytest.mark.slow
 def test_ray_gives_the_same_table(reference: Path, tmp_path: Path) -> None:
     ray = pytest.importorskip(
@@ -570,6 +619,38 @@ def test_ray_gives_the_same_table(reference: Path, tmp_path: Path) -> None:
             backend.close()
     finally:
         ray.shutdown()
+
+
+@pytest.mark.slow
+def test_ray_actors_default_to_the_cluster_cpus_and_read_no_task_file(
+    reference: Path, tmp_path: Path
+) -> None:
+    """Without `workers`, one actor per CPU of the Ray instance (on a cluster: every node's, not this
+    machine's); the actors run the driver's Task objects, so they need no task file."""
+    ray = pytest.importorskip(
+        "ray", reason="Ray is not installed (optional extra phri[ray]); backend 'ray' untested"
+    )
+    from phri.study.parallel import RayBackend
+
+    cpus = default_workers() + 1  # a "cluster" with more CPUs than this machine gives this process
+    ray.init(num_cpus=cpus, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        config, task_file = study_with_a_task_file(tmp_path)
+        tasks, specs = config.load_tasks(), schedule(config)
+        task_file.unlink()
+        backend = RayBackend(config, tasks=tasks)
+        try:
+            assert backend.workers == len(backend.actors) == int(ray.cluster_resources()["CPU"]) == cpus
+            assert backend.worker_environments() == [THREAD_ENV] * cpus  # every actor started
+            laptop = [s for s in specs if s.task == "laptop"][:2]
+            outcomes = sorted(backend.run(laptop), key=lambda o: o.spec)
+        finally:
+            backend.close()
+    finally:
+        ray.shutdown()
+    rows = pd.DataFrame([o.row for o in outcomes]).drop(columns="wall_time")
+    expected = reference_rows(reference, [s.key for s in laptop])
+    assert rows.to_dict("records") == expected.to_dict("records")
 
 
 # -- statistics against hand computations -------------------------------------------------------------

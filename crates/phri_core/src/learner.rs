@@ -27,6 +27,11 @@ pub struct LearnerParams {
     /// fraction of its velocity limit (`TimedTrajectory::switch_to`); 0 switches at once, as the
     /// original did (the arm then snaps onto the new plan, faster than its limits).
     pub transition_speed: f64,
+    /// Newton iterations a replan may take per call of `observe` (0: replan to convergence at
+    /// once, Algorithm 1 as written). With a budget, a replan that has not converged goes on at the
+    /// next calls, every tick, the robot blending into each better plan as it comes; one call then
+    /// stays within the budget's time (about 70 µs an iteration at N = 31 here) whatever the push.
+    pub replan_iterations: usize,
 }
 
 impl Default for LearnerParams {
@@ -37,6 +42,7 @@ impl Default for LearnerParams {
             duration: 15.0,
             interpolation: Interpolation::Cubic,
             transition_speed: DEFAULT_TRANSITION_SPEED,
+            replan_iterations: 0,
         }
     }
 }
@@ -97,6 +103,8 @@ pub struct Learner {
     next_sample: f64,
     /// transition_speed × velocity limits [rad/s] (empty: switch at once).
     speed_limits: Vec<f64>,
+    /// A replan cut short by `replan_iterations` is still converging.
+    replan_pending: bool,
     // Workspaces.
     candidate: Vec<f64>,
     tracked: Vec<f64>,
@@ -168,8 +176,13 @@ impl Learner {
         let mut weights = weights.to_vec();
         update.clip(&mut weights);
         let m = optimizer.waypoints();
+        let full_cap = optimizer.params().max_iterations;
         let mut plan0 = vec![0.0; m * n];
         optimizer.solve(&mut features, &weights, start, goal, None, &mut plan0)?;
+        if params.replan_iterations > 0 {
+            // The initial plan converged above; replans keep to the per-tick budget.
+            optimizer.set_max_iterations(params.replan_iterations.min(full_cap))?;
+        }
         let plan = TimedTrajectory::new(plan0.clone(), n, params.duration, params.interpolation)?;
         // The deformation of unit torques, μ·H per waypoint of a full window (for relevance).
         let history = History { interactions: Vec::new(), plans: vec![(0.0, plan0)] };
@@ -185,6 +198,7 @@ impl Learner {
             plan,
             next_sample: 0.0,
             speed_limits,
+            replan_pending: false,
             candidate: vec![0.0; m * n],
             tracked: vec![0.0; m * n],
             rates: vec![0.0; 2 * n],
@@ -224,6 +238,11 @@ impl Learner {
         &self.history
     }
 
+    /// Whether a replan cut short by the per-tick budget is still converging.
+    pub fn replan_pending(&self) -> bool {
+        self.replan_pending
+    }
+
     /// The reference (q_R [rad], q̇_R [rad/s], q̈_R [rad/s²]) at time `t` [s]; allocates nothing.
     #[inline]
     pub fn reference(&self, t: f64, q: &mut [f64], qd: &mut [f64], qdd: &mut [f64]) {
@@ -240,12 +259,20 @@ impl Learner {
         // (tick times carry rounding). Missed instants are not replayed.
         let position = t / self.params.sample_period + 1e-6;
         if position < self.next_sample {
+            if self.replan_pending {
+                self.replan(t)?;
+                obs.replanned = true;
+            }
             return Ok(obs);
         }
         self.next_sample = position.floor() + 1.0;
         obs.sampled = true;
         obs.interacted = self.detector.detect(tau_measured, &mut self.u_h)?;
         if !obs.interacted {
+            if self.replan_pending {
+                self.replan(t)?;
+                obs.replanned = true;
+            }
             return Ok(obs);
         }
         let mut record = Interaction {
@@ -260,6 +287,9 @@ impl Learner {
         if self.params.learning {
             self.learn(t, &mut record)?;
             obs.replanned = record.replan.is_some();
+        } else if self.replan_pending {
+            self.replan(t)?;
+            obs.replanned = true;
         }
         self.history.interactions.push(record);
         Ok(obs)
@@ -311,8 +341,14 @@ impl Learner {
         record.delta_phi = self.delta_phi.clone();
         record.weights = self.weights.clone();
         record.update = Some(info);
-        // Replan over [0, T] from the original start, warm-started from the current plan.
-        let replan = self.optimizer.solve(
+        record.replan = Some(self.replan(t)?);
+        Ok(())
+    }
+
+    /// Replans over [0, T] from the original start, warm-started from the current plan, within the
+    /// per-tick budget, and switches to the result at `t`.
+    fn replan(&mut self, t: f64) -> Result<TrajoptInfo> {
+        let info = self.optimizer.solve(
             &mut self.features,
             &self.weights,
             &self.start,
@@ -321,9 +357,9 @@ impl Learner {
             &mut self.candidate,
         )?;
         self.plan.switch_to(&self.candidate, t, &self.speed_limits)?;
-        record.replan = Some(replan);
+        self.replan_pending = self.params.replan_iterations > 0 && !info.converged;
         self.history.plans.push((t, self.candidate.clone()));
-        Ok(())
+        Ok(info)
     }
 
     /// Linearised sensitivity S = ∂ΔΦ/∂u_H (K × n) at the current plan, then relevance.

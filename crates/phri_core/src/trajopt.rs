@@ -290,6 +290,15 @@ impl TrajectoryOptimizer {
         })
     }
 
+    /// Sets the iteration cap of later solves (e.g. a per-tick budget; see `LearnerParams`).
+    pub fn set_max_iterations(&mut self, cap: usize) -> Result<()> {
+        if cap == 0 {
+            return Err(PhriError::invalid("max_iterations", "must be at least 1"));
+        }
+        self.params.max_iterations = cap;
+        Ok(())
+    }
+
     pub fn params(&self) -> &TrajoptParams {
         &self.params
     }

@@ -19,6 +19,18 @@ const PLACE_LOWER: [f64; 7] = [210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0];
 const PLACE_HIGHER: [f64; 7] = [210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4];
 
 fn learner(feature: &str, start: [f64; 7], goal: [f64; 7], gain: f64, upper: f64, rule: UpdateRule, learning: bool) -> Learner {
+    learner_with(feature, start, goal, gain, upper, rule, LearnerParams { learning, ..Default::default() })
+}
+
+fn learner_with(
+    feature: &str,
+    start: [f64; 7],
+    goal: [f64; 7],
+    gain: f64,
+    upper: f64,
+    rule: UpdateRule,
+    params: LearnerParams,
+) -> Learner {
     let model = Arc::new(jaco2());
     let l7 = model.frame_id("j2s7s300_link_7").unwrap();
     let ee = model.frame_id("j2s7s300_end_effector").unwrap();
@@ -36,7 +48,6 @@ fn learner(feature: &str, start: [f64; 7], goal: [f64; 7], gain: f64, upper: f64
     .unwrap();
     let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
     let deformation = Deformation::new(DeformParams::default()).unwrap();
-    let params = LearnerParams { learning, ..Default::default() };
     Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &deg(start), &deg(goal)).unwrap()
 }
 
@@ -142,4 +153,37 @@ fn samples_follow_the_sample_period_and_quiet_ticks_change_nothing() {
     assert!(l.history().interactions.is_empty());
     assert!(l.observe(f64::NAN, &[0.0; 7]).is_err());
     assert!(l.observe(2.0, &[0.0; 6]).is_err());
+}
+
+#[test]
+fn a_replan_budget_spreads_the_replan_over_ticks_and_ends_on_the_same_plan() {
+    let budget = 3;
+    let params = LearnerParams { replan_iterations: budget, ..Default::default() };
+    let mut capped = learner_with("laptop", PICK_BASIC, PLACE_HIGHER, 100.0, 10.0, UpdateRule::All, params);
+    let mut full = learner("laptop", PICK_BASIC, PLACE_HIGHER, 100.0, 10.0, UpdateRule::All, true);
+    assert_eq!(capped.plan().waypoints(), full.plan().waypoints(), "the initial plan converges either way");
+    let t = 4.0;
+    let p = hand(&full, t);
+    let tau = push(&full, t, Vector3::new(p.x + 0.7929, p.y + 0.1, 0.0).normalize() * 25.0, Vector3::zeros());
+    assert!(full.observe(t, &tau).unwrap().replanned);
+    let obs = capped.observe(t, &tau).unwrap();
+    assert!(obs.replanned && capped.replan_pending(), "one push at weight 0 takes more than {budget} iterations");
+    assert_eq!(capped.weights(), full.weights());
+    let first = capped.history().interactions[0].replan.unwrap();
+    assert!(first.iterations <= budget && !first.converged, "{first:?}");
+    // Quiet ticks at 1 kHz go on with the replan until it converges.
+    let mut ticks = 0;
+    while capped.replan_pending() {
+        ticks += 1;
+        assert!(ticks < 200, "the budgeted replan never converged");
+        let obs = capped.observe(t + 1e-3 * ticks as f64, &[0.0; 7]).unwrap();
+        assert!(obs.replanned && !obs.interacted);
+    }
+    assert!(ticks >= 2, "{ticks}");
+    assert_eq!(capped.history().plans.len(), ticks + 2, "the initial plan, the first chunk, one per tick");
+    // The same optimum as the uncapped replan (the chunks restart the damping, so not bit for bit).
+    let worst = capped.plan().waypoints().iter().zip(full.plan().waypoints()).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    assert!(worst < 1e-5, "the budgeted plan ends {worst} rad from the uncapped one");
+    // Nothing pending: quiet ticks do nothing.
+    assert!(!capped.observe(t + 0.5, &[0.0; 7]).unwrap().replanned);
 }

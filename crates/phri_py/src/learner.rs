@@ -19,6 +19,8 @@ use crate::update::{PyUpdateInfo, PyWeightUpdate};
 /// are copied in, so the objects passed can be reused. `learning=False` is the impedance baseline.
 /// After a replan the reference blends into the new plan with joint speeds of at most
 /// `transition_speed` × the velocity limits (0: switch at once, as the original did).
+/// `replan_iterations` caps the Newton iterations of a replan per `observe` call (0: to
+/// convergence at once); an unfinished replan goes on at the next calls (`replan_pending`).
 #[pyclass(name = "Learner", module = "phri._phri")]
 pub struct PyLearner {
     learner: Learner,
@@ -36,7 +38,7 @@ impl PyLearner {
     #[pyo3(signature = (
         features, deformation, update, detector, optimizer, weights, start, goal, *,
         duration = 15.0, sample_period = 0.1, interpolation = "cubic", learning = true,
-        transition_speed = 0.8
+        transition_speed = 0.8, replan_iterations = 0
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -54,6 +56,7 @@ impl PyLearner {
         interpolation: &str,
         learning: bool,
         transition_speed: f64,
+        replan_iterations: usize,
     ) -> PyResult<Self> {
         let interpolation = match interpolation {
             "cubic" => Interpolation::Cubic,
@@ -67,7 +70,7 @@ impl PyLearner {
         let weights = vector("weights", &weights, set.len())?.into_owned();
         let start = vector("start", &start, n)?.into_owned();
         let goal = vector("goal", &goal, n)?.into_owned();
-        let params = LearnerParams { learning, sample_period, duration, interpolation, transition_speed };
+        let params = LearnerParams { learning, sample_period, duration, interpolation, transition_speed, replan_iterations };
         let (deformation, update, detector, optimizer) =
             (deformation.deformation.clone(), update.update.clone(), detector.detector.clone(), optimizer.optimizer.clone());
         let learner = py
@@ -107,6 +110,12 @@ impl PyLearner {
     fn plan<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let plan = self.learner.plan();
         PyArray1::from_slice(py, plan.waypoints()).reshape([plan.len(), self.n])
+    }
+
+    /// Whether a replan cut short by `replan_iterations` is still converging.
+    #[getter]
+    fn replan_pending(&self) -> bool {
+        self.learner.replan_pending()
     }
 
     /// Whether the learner learns (False: the impedance baseline).

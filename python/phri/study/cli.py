@@ -66,7 +66,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     x = s.add_argument_group("execution (does not change the results)")
     x.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
                    help="where episodes run (default: a local process pool)")  # fmt: skip
-    x.add_argument("--workers", type=int, help="parallel workers, >= 1 (default: the CPUs available)")
+    x.add_argument("--workers", type=int, help="parallel workers, >= 1 (default: the CPUs available; with "
+                   "--backend ray, the Ray cluster's CPUs, all nodes together)")  # fmt: skip
     x.add_argument(
         "--address", help="Ray cluster address, e.g. 'auto' (backend ray; default: a local instance)"
     )

@@ -6,6 +6,11 @@ and one Planner per task, reused across its episodes. Because an episode's seed 
 episode is (see :mod:`phri.study.protocol`) and the simulator is reset per episode, every backend gives
 the same table.
 
+The tasks are loaded and checked once, in this process (the driver), and every worker gets the
+:class:`~phri.config.Task` objects: a worker never reads a task file, so a Ray cluster needs no shared
+file system, and a node cannot run another version of a file than the one whose checksum the study
+folder checked.
+
 Workers are single-threaded for BLAS/OpenMP: the variables of :data:`THREAD_ENV` are in each worker's
 environment from its start, so they are set before the worker imports numpy (pool workers are spawned,
 not forked, with these variables; Ray actors get them through their runtime environment).
@@ -19,10 +24,11 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any, Protocol
 
+from phri.config import Task
 from phri.exceptions import InvalidParameterError
 from phri.study.protocol import EpisodeSpec, StudyConfig
 from phri.study.runner import EpisodeRunner, Outcome
@@ -34,6 +40,8 @@ __all__ = [
     "ProcessBackend",
     "RayBackend",
     "SerialBackend",
+    "cluster_cpus",
+    "driver_tasks",
     "make_backend",
 ]
 
@@ -69,12 +77,30 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def driver_tasks(config: StudyConfig, tasks: Mapping[str, Task] | None = None) -> dict[str, Task]:
+    """The tasks a backend hands to its workers: `tasks` (by name, as ``config.load_tasks()`` gives
+    them, e.g. those whose checksums the study folder checked) or, if None, loaded from `config` here,
+    in the driver."""
+    if tasks is None:
+        return config.load_tasks()
+    if not isinstance(tasks, Mapping) or not all(
+        isinstance(t, Task) and t.name == name for name, t in tasks.items()
+    ):
+        raise InvalidParameterError(
+            f"tasks must map each task name to its phri.config.Task (as StudyConfig.load_tasks() does), "
+            f"got {tasks!r}"
+        )
+    return dict(tasks)
+
+
 class SerialBackend:
     """Episodes one after another in this process (one World)."""
 
-    def __init__(self, config: StudyConfig, log_width: int = 2) -> None:
+    def __init__(
+        self, config: StudyConfig, log_width: int = 2, tasks: Mapping[str, Task] | None = None
+    ) -> None:
         self.workers = 1
-        self.runner = EpisodeRunner(config, log_width)
+        self.runner = EpisodeRunner(config, driver_tasks(config, tasks), log_width)
 
     def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
         for spec in specs:
@@ -103,14 +129,17 @@ def _exit_when_orphaned(parent: int, poll: float = ORPHAN_POLL) -> None:
     os._exit(1)
 
 
-def _init_worker(config: StudyConfig, log_width: int, env: dict[str, str], parent: int) -> None:
+def _init_worker(
+    config: StudyConfig, tasks: dict[str, Task], log_width: int, env: dict[str, str], parent: int
+) -> None:
     """Pool initializer: starts the orphan watchdog, pins the thread variables (already inherited
-    at spawn) and builds the worker's runner; the World itself is made on the first episode."""
+    at spawn) and builds the worker's runner with the driver's tasks; the World itself is made on the
+    first episode."""
     global _RUNNER
     watchdog = threading.Thread(target=_exit_when_orphaned, args=(parent,), name="phri-orphaned", daemon=True)
     watchdog.start()
     os.environ.update(env)
-    _RUNNER = EpisodeRunner(config, log_width)
+    _RUNNER = EpisodeRunner(config, tasks, log_width)
 
 
 def _run_in_worker(spec: EpisodeSpec) -> Outcome:
@@ -144,11 +173,18 @@ class ProcessBackend:
     At most two episodes per worker are queued at a time, so an interrupted study wastes little work.
     Each worker exits by itself when this process dies without shutting the pool down."""
 
-    def __init__(self, config: StudyConfig, workers: int | None = None, log_width: int = 2) -> None:
+    def __init__(
+        self,
+        config: StudyConfig,
+        workers: int | None = None,
+        log_width: int = 2,
+        tasks: Mapping[str, Task] | None = None,
+    ) -> None:
         self.workers = default_workers() if workers is None else workers
         if self.workers < 1:
             raise InvalidParameterError(f"workers must be >= 1, got {self.workers}")
         self.config, self.log_width = config, log_width
+        self.tasks = driver_tasks(config, tasks)
         self._pool: ProcessPoolExecutor | None = None
 
     def _start(self) -> ProcessPoolExecutor:
@@ -157,7 +193,7 @@ class ProcessBackend:
                 max_workers=self.workers,
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init_worker,
-                initargs=(self.config, self.log_width, THREAD_ENV, os.getpid()),
+                initargs=(self.config, self.tasks, self.log_width, THREAD_ENV, os.getpid()),
             )
         return self._pool
 
@@ -194,10 +230,11 @@ class ProcessBackend:
 
 
 class _RayWorker:
-    """The body of a Ray actor: one runner (one World) for the actor's lifetime."""
+    """The body of a Ray actor: one runner (one World) for the actor's lifetime, with the driver's
+    tasks."""
 
-    def __init__(self, config: StudyConfig, log_width: int) -> None:
-        self.runner = EpisodeRunner(config, log_width)
+    def __init__(self, config: StudyConfig, tasks: dict[str, Task], log_width: int) -> None:
+        self.runner = EpisodeRunner(config, tasks, log_width)
 
     def run(self, spec: EpisodeSpec) -> Outcome:
         return self.runner.run(spec)
@@ -208,12 +245,22 @@ class _RayWorker:
 
 class RayBackend:
     """`workers` Ray actors, each keeping one simulator; on a cluster with `address` (e.g. "auto"),
-    else a local Ray instance with `workers` CPUs. Logs travel back as bytes: no shared disk needed.
+    else a local Ray instance with `workers` CPUs (the CPUs available if None). Ray is used as it is
+    if this process already joined it.
+
+    `workers` None means one actor per CPU of the Ray instance (``ray.cluster_resources()["CPU"]``,
+    at least one): on a cluster, the whole cluster's CPUs, not this machine's. The tasks are the
+    driver's (see :func:`driver_tasks`) and logs travel back as bytes: no shared disk needed.
 
     Ray is the optional extra ``phri[ray]``."""
 
     def __init__(
-        self, config: StudyConfig, workers: int | None = None, log_width: int = 2, address: str | None = None
+        self,
+        config: StudyConfig,
+        workers: int | None = None,
+        log_width: int = 2,
+        address: str | None = None,
+        tasks: Mapping[str, Task] | None = None,
     ) -> None:
         try:
             import ray
@@ -222,18 +269,23 @@ class RayBackend:
                 "the 'ray' backend needs Ray: pip install 'phri[ray]' (or: pip install ray)"
             ) from e
         self.ray = ray
-        self.workers = default_workers() if workers is None else workers
-        if self.workers < 1:
-            raise InvalidParameterError(f"workers must be >= 1, got {self.workers}")
+        if workers is not None and workers < 1:
+            raise InvalidParameterError(f"workers must be >= 1, got {workers}")
+        tasks = driver_tasks(config, tasks)  # before Ray starts: a bad task file fails fast
         self._started = False
         if not ray.is_initialized():
-            kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": self.workers}
+            kwargs: dict[str, Any] = (
+                {"address": address}
+                if address
+                else {"num_cpus": default_workers() if workers is None else workers}
+            )
             ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
             self._started = True
+        self.workers = cluster_cpus(ray) if workers is None else workers
         actor = ray.remote(num_cpus=1)(_RayWorker)
         options = {"runtime_env": {"env_vars": dict(THREAD_ENV)}}
         self.actors: list[Any] = [
-            actor.options(**options).remote(config, log_width) for _ in range(self.workers)
+            actor.options(**options).remote(config, tasks, log_width) for _ in range(self.workers)
         ]
 
     def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
@@ -266,6 +318,12 @@ class RayBackend:
             self._started = False
 
 
+def cluster_cpus(ray: Any) -> int:
+    """The CPUs of the Ray instance this process joined (every node's), at least one: an autoscaling
+    cluster may have none yet, and one actor is what makes it add a node."""
+    return max(1, int(ray.cluster_resources().get("CPU", 0)))
+
+
 def check_backend(name: str) -> None:
     """Raises if backend `name` is unknown (InvalidParameterError) or not installed (ImportError)."""
     if name not in BACKENDS:
@@ -280,13 +338,19 @@ def check_backend(name: str) -> None:
 
 
 def make_backend(
-    name: str, config: StudyConfig, workers: int | None = None, log_width: int = 2, address: str | None = None
+    name: str,
+    config: StudyConfig,
+    workers: int | None = None,
+    log_width: int = 2,
+    address: str | None = None,
+    tasks: Mapping[str, Task] | None = None,
 ) -> Backend:
-    """A backend by name: "serial", "process" (default for studies) or "ray"."""
+    """A backend by name: "serial", "process" (default for studies) or "ray". Its workers run `tasks`
+    (None: the study's tasks, loaded here in the driver; see :func:`driver_tasks`)."""
     if name == "serial":
-        return SerialBackend(config, log_width)
+        return SerialBackend(config, log_width, tasks)
     if name == "process":
-        return ProcessBackend(config, workers, log_width)
+        return ProcessBackend(config, workers, log_width, tasks)
     if name == "ray":
-        return RayBackend(config, workers, log_width, address)
+        return RayBackend(config, workers, log_width, address, tasks)
     raise InvalidParameterError(f"backend must be one of {BACKENDS}, got {name!r}")

@@ -67,8 +67,9 @@ def run_study(
     every block finished before this call and not answered yet (a questionnaire lost to an
     interruption is asked on resume), and not for answered blocks.
 
-    `workers` must be >= 1 (None: the CPUs available). A folder started with another phri version is
-    refused (:class:`~phri.study.errors.StudyMismatchError`) unless `allow_version_change`.
+    `workers` must be >= 1 (None: the CPUs available; for backend "ray", the Ray cluster's CPUs). A
+    folder started with another phri version is refused (:class:`~phri.study.errors.StudyMismatchError`)
+    unless `allow_version_change`.
     """
     if max_episodes is not None and max_episodes < 0:
         raise InvalidParameterError(f"max_episodes must be >= 0, got {max_episodes}")

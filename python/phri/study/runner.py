@@ -2,15 +2,19 @@
 
 Every backend (serial, process pool, Ray) wraps an :class:`EpisodeRunner`; what comes back is an
 :class:`Outcome` — the table row and the episode's log as bytes — so that the process that owns the
-study folder is the only one that writes to it (and a cluster needs no shared file system).
+study folder is the only one that writes to it (and a cluster needs no shared file system). Likewise
+the tasks: the process that starts the study loads and checks the task files once and hands the
+:class:`~phri.config.Task` objects to every runner, so no worker reads a task file.
 """
 
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from phri.config import Task
 from phri.exceptions import SimulationError
 from phri.sim.episode import Planner, run_episode
 from phri.sim.participant import ParticipantParams
@@ -31,11 +35,13 @@ class Outcome:
 
 
 class EpisodeRunner:
-    """Runs any episode of `config`; the World and the Planners are made once and reused."""
+    """Runs any episode of `config` with its `tasks` (by name, as ``config.load_tasks()`` gives them,
+    loaded by the caller: the runner reads no task file); the World and the Planners are made once and
+    reused."""
 
-    def __init__(self, config: StudyConfig, log_width: int = 2) -> None:
+    def __init__(self, config: StudyConfig, tasks: Mapping[str, Task], log_width: int = 2) -> None:
         self.config = config
-        self.tasks = config.load_tasks()
+        self.tasks = dict(tasks)
         self.log_width = log_width
         self._world: World | None = None
         self._planners: dict[str, Planner] = {}

@@ -1,4 +1,5 @@
-"""phri.Robot: contracts (shapes, dtypes, batching, exceptions) and agreement with PyBullet.
+"""phri.Robot: contracts (shapes, dtypes, batching, exceptions) and agreement with PyBullet, for the
+JACO2 and for robots written here (prismatic joints, tilted non-unit axes, a sub-chain of a tree).
 
 PyBullet reads the same URDF, so any rounding in the file is shared and the two agree to machine
 precision: the brief's contract is 1e-6, and double-precision quantities are held to ATOL = 1e-9
@@ -12,6 +13,7 @@ frame composes the double-precision COM frame (fields 0, 1) with the local inert
 from __future__ import annotations
 
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -360,6 +362,370 @@ def test_with_payload_returns_a_new_robot(robot: phri.Robot, draw_q):
     np.testing.assert_array_equal(robot.gravity(qs), before)
     assert not np.array_equal(loaded.gravity(qs), before)
     np.testing.assert_array_equal(robot.with_payload(CUP_FRAME, 0.0).gravity(qs), before)
+
+
+# --------------------------------------------------------------------------------------------------
+# robots other than the JACO2: prismatic joints, tilted and non-unit axes, sub-chains of a tree
+
+
+#: Axes of the mixed chain's joints (revolute, prismatic, revolute, prismatic): the revolute ones
+#: tilted and not unit vectors (norms 0.99998 and 2.5); the prismatic ones tilted unit vectors.
+MIXED_AXES = ("0.3 0.4 0.866", "0.48 -0.6 0.64", "1.2 -0.9 2.0", "0.36 0.48 -0.8")
+
+#: A 4-joint chain base → l1 → l2 → l3 → l4 (revolute, prismatic, revolute, prismatic) and a tool fixed
+#: to l4: every joint origin and inertial frame rotated by a general rpy, every inertia with products.
+MIXED_CHAIN = """<robot name="mixed">
+<link name="base"><inertial><mass value="2.0"/><origin xyz="0.01 0 0.05" rpy="0 0 0"/>
+  <inertia ixx="0.02" ixy="0.001" ixz="0" iyy="0.021" iyz="0.0005" izz="0.018"/></inertial></link>
+<link name="l1"><inertial><mass value="1.3"/><origin xyz="0.02 -0.01 0.12" rpy="0.1 -0.2 0.3"/>
+  <inertia ixx="0.031" ixy="0.0021" ixz="-0.0013" iyy="0.027" iyz="0.0017" izz="0.012"/></inertial></link>
+<link name="l2"><inertial><mass value="0.9"/><origin xyz="-0.03 0.05 0.08" rpy="0.4 0.2 -0.6"/>
+  <inertia ixx="0.012" ixy="-0.0011" ixz="0.0009" iyy="0.015" iyz="-0.0014" izz="0.009"/></inertial></link>
+<link name="l3"><inertial><mass value="0.7"/><origin xyz="0.01 0.02 -0.04" rpy="-0.3 0.5 0.1"/>
+  <inertia ixx="0.008" ixy="0.0007" ixz="0.0005" iyy="0.006" iyz="-0.0006" izz="0.005"/></inertial></link>
+<link name="l4"><inertial><mass value="0.4"/><origin xyz="0.05 -0.02 0.03" rpy="0.7 -0.1 0.9"/>
+  <inertia ixx="0.003" ixy="-0.0004" ixz="0.0003" iyy="0.004" iyz="0.0002" izz="0.0025"/></inertial></link>
+<link name="tool"><inertial><mass value="0.2"/><origin xyz="0 0.01 0.02" rpy="0.2 0.3 0"/>
+  <inertia ixx="0.0005" ixy="3e-05" ixz="-2e-05" iyy="0.0006" iyz="4e-05" izz="0.0004"/></inertial></link>
+<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>
+  <origin xyz="0.05 -0.02 0.15" rpy="0.2 -0.1 0.4"/><axis xyz="{0}"/>
+  <limit lower="-2.5" upper="2.5" effort="50" velocity="2"/></joint>
+<joint name="j2" type="prismatic"><parent link="l1"/><child link="l2"/>
+  <origin xyz="0.1 0.03 0.25" rpy="-0.5 0.3 0.2"/><axis xyz="{1}"/>
+  <limit lower="-0.2" upper="0.3" effort="100" velocity="0.5"/></joint>
+<joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/>
+  <origin xyz="-0.04 0.12 0.2" rpy="1.1 0.4 -0.7"/><axis xyz="{2}"/>
+  <limit lower="-1.7" upper="2.1" effort="30" velocity="2.5"/></joint>
+<joint name="j4" type="prismatic"><parent link="l3"/><child link="l4"/>
+  <origin xyz="0.07 -0.05 0.1" rpy="0.3 -0.8 1.2"/><axis xyz="{3}"/>
+  <limit lower="-0.1" upper="0.15" effort="80" velocity="0.4"/></joint>
+<joint name="jt" type="fixed"><parent link="l4"/><child link="tool"/>
+  <origin xyz="0.02 0.01 0.09" rpy="0.5 0.25 -0.35"/></joint>
+</robot>"""
+
+
+def mixed_chain_urdf(axes: tuple[str, ...] = MIXED_AXES) -> str:
+    return MIXED_CHAIN.format(*axes)
+
+
+#: A tree rooted at `ground`. A turntable joint (about the vertical) carries `mount`, the base of the
+#: sub-chain mount → a1 → a2 → a3 (joints t1 revolute, t2 prismatic, t3 continuous); beside it, a
+#: branch `other` that is not below mount. Lumped into the chain's bodies: plate (fixed to mount),
+#: camera (fixed to a1), s1 and s2 (a side branch off a2 through a revolute and a prismatic joint,
+#: locked at 0), finger and pad (below the tip a3, through a revolute joint, locked at 0).
+TREE = """<robot name="tree">
+<link name="ground"><inertial><mass value="5.0"/><origin xyz="0 0 0.02" rpy="0 0 0"/>
+  <inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link>
+<link name="other"><inertial><mass value="1.0"/><origin xyz="0.1 0 0" rpy="0.3 0 0"/>
+  <inertia ixx="0.01" ixy="0.001" ixz="0" iyy="0.012" iyz="0" izz="0.009"/></inertial></link>
+<link name="mount"><inertial><mass value="1.5"/><origin xyz="0 0.02 0.03" rpy="0.1 0.2 0.3"/>
+  <inertia ixx="0.012" ixy="0.0008" ixz="-0.0004" iyy="0.011" iyz="0.0006" izz="0.01"/></inertial></link>
+<link name="plate"><inertial><mass value="0.3"/><origin xyz="0.01 0 0" rpy="0 0.4 0"/>
+  <inertia ixx="0.001" ixy="0.0001" ixz="0" iyy="0.0012" iyz="0" izz="0.0009"/></inertial></link>
+<link name="a1"><inertial><mass value="1.1"/><origin xyz="0.01 0.03 0.14" rpy="-0.2 0.1 0.5"/>
+  <inertia ixx="0.025" ixy="-0.0018" ixz="0.0011" iyy="0.022" iyz="0.0013" izz="0.01"/></inertial></link>
+<link name="camera"><inertial><mass value="0.25"/><origin xyz="0.02 0 0.01" rpy="0.3 -0.2 0.1"/>
+  <inertia ixx="0.0004" ixy="5e-05" ixz="-3e-05" iyy="0.0005" iyz="2e-05" izz="0.0003"/></inertial></link>
+<link name="a2"><inertial><mass value="0.8"/><origin xyz="-0.02 0.04 0.09" rpy="0.5 -0.3 0.2"/>
+  <inertia ixx="0.01" ixy="0.0009" ixz="-0.0007" iyy="0.012" iyz="0.0011" izz="0.007"/></inertial></link>
+<link name="s1"><inertial><mass value="0.35"/><origin xyz="0.04 0 0.02" rpy="0.2 0.2 0.2"/>
+  <inertia ixx="0.0015" ixy="-0.0002" ixz="0.0001" iyy="0.0018" iyz="0.0001" izz="0.0012"/></inertial></link>
+<link name="s2"><inertial><mass value="0.15"/><origin xyz="0 0.02 0" rpy="-0.4 0 0.3"/>
+  <inertia ixx="0.0003" ixy="2e-05" ixz="1e-05" iyy="0.0004" iyz="-3e-05" izz="0.0002"/></inertial></link>
+<link name="a3"><inertial><mass value="0.6"/><origin xyz="0.02 -0.01 0.05" rpy="0.1 0.6 -0.4"/>
+  <inertia ixx="0.006" ixy="-0.0005" ixz="0.0004" iyy="0.005" iyz="0.0003" izz="0.004"/></inertial></link>
+<link name="finger"><inertial><mass value="0.1"/><origin xyz="0.01 0 0.02" rpy="0 0 0.5"/>
+  <inertia ixx="0.0002" ixy="1e-05" ixz="0" iyy="0.00025" iyz="2e-05" izz="0.00015"/></inertial></link>
+<link name="pad"><inertial><mass value="0.05"/><origin xyz="0 0 0.005" rpy="0.3 0 0"/>
+  <inertia ixx="3e-05" ixy="2e-06" ixz="0" iyy="4e-05" iyz="0" izz="2e-05"/></inertial></link>
+<joint name="turntable" type="revolute"><parent link="ground"/><child link="mount"/>
+  <origin xyz="0.3 -0.2 0.1" rpy="0 0 0.7"/><axis xyz="0 0 1"/>
+  <limit lower="-3" upper="3" effort="40" velocity="1.5"/></joint>
+<joint name="j_other" type="revolute"><parent link="ground"/><child link="other"/>
+  <origin xyz="-0.4 0.1 0.2" rpy="0.3 0.2 0.1"/><axis xyz="0 1 0"/>
+  <limit lower="-1" upper="1" effort="40" velocity="1.5"/></joint>
+<joint name="j_plate" type="fixed"><parent link="mount"/><child link="plate"/>
+  <origin xyz="0 0.05 0.02" rpy="0.2 0 0.3"/></joint>
+<joint name="t1" type="revolute"><parent link="mount"/><child link="a1"/>
+  <origin xyz="0.02 0.03 0.12" rpy="0.1 -0.3 0.2"/><axis xyz="0.3 0.4 0.866"/>
+  <limit lower="-2.6" upper="2.4" effort="45" velocity="1.8"/></joint>
+<joint name="j_camera" type="fixed"><parent link="a1"/><child link="camera"/>
+  <origin xyz="0.05 -0.04 0.1" rpy="-0.4 0.6 1.0"/></joint>
+<joint name="t2" type="prismatic"><parent link="a1"/><child link="a2"/>
+  <origin xyz="0.08 0.02 0.3" rpy="0.6 -0.2 0.4"/><axis xyz="0.48 -0.6 0.64"/>
+  <limit lower="-0.15" upper="0.25" effort="90" velocity="0.6"/></joint>
+<joint name="j_side" type="revolute"><parent link="a2"/><child link="s1"/>
+  <origin xyz="0.06 0.02 0.04" rpy="0.5 0.1 -0.3"/><axis xyz="0 0.6 0.8"/>
+  <limit lower="-1" upper="1" effort="40" velocity="1.5"/></joint>
+<joint name="j_side2" type="prismatic"><parent link="s1"/><child link="s2"/>
+  <origin xyz="0.1 0 0" rpy="0 0.2 0"/><axis xyz="1 0 0"/>
+  <limit lower="-0.1" upper="0.1" effort="40" velocity="1.5"/></joint>
+<joint name="t3" type="continuous"><parent link="a2"/><child link="a3"/>
+  <origin xyz="-0.03 0.1 0.18" rpy="-0.9 0.3 0.5"/><axis xyz="1.2 -0.9 2.0"/>
+  <limit effort="20" velocity="2.2"/></joint>
+<joint name="j_finger" type="revolute"><parent link="a3"/><child link="finger"/>
+  <origin xyz="0.03 0 0.08" rpy="0.2 -0.5 0.1"/><axis xyz="0 0 1"/>
+  <limit lower="-0.5" upper="0.5" effort="40" velocity="1.5"/></joint>
+<joint name="j_pad" type="fixed"><parent link="finger"/><child link="pad"/>
+  <origin xyz="0.01 0.02 0.04" rpy="-0.3 0.1 0.6"/></joint>
+</robot>"""
+
+#: The tree's links below mount: the frames of the sub-chain's model.
+TREE_FRAMES = ["mount", "plate", "a1", "camera", "a2", "s1", "s2", "a3", "finger", "pad"]
+
+
+def load_string(load_pybullet, text: str, folder: Path, name: str) -> PyBulletRobot:
+    path = folder / f"{name}.urdf"
+    path.write_text(text)
+    return load_pybullet(path)
+
+
+def dof_indices(robot: phri.Robot, pb: PyBulletRobot) -> list[int]:
+    """Where each of the robot's joints is in PyBullet's joint vector (all its movable joints)."""
+    names = [p.getJointInfo(pb.body, j, physicsClientId=pb.client)[1].decode() for j in pb.joints]
+    return [names.index(n) for n in robot.joint_names]
+
+
+def world_t_link(pb: PyBulletRobot, link: int) -> tuple[np.ndarray, np.ndarray]:
+    """(position, rotation) of a link's URDF frame, in double precision; link -1 is the base."""
+    if link >= 0:
+        p_link, r_link, _, _ = link_frames(pb, link)
+        return p_link, r_link
+    p_com, quat = p.getBasePositionAndOrientation(pb.body, physicsClientId=pb.client)
+    p_in, r_in = inertial_frame(pb, -1)
+    r_link = quat_to_matrix(quat) @ r_in.T
+    return np.array(p_com) - r_link @ p_in, r_link
+
+
+def assert_same_joints(robot: phri.Robot, pb: PyBulletRobot, kinds: list[int]) -> list[int]:
+    """The robot's joints are PyBullet's of those names, with their types and limits; returns their
+    indices in PyBullet's joint vector."""
+    dofs = dof_indices(robot, pb)
+    for k, d in enumerate(dofs):
+        info = p.getJointInfo(pb.body, pb.joints[d], physicsClientId=pb.client)
+        assert info[2] == kinds[k], f"{robot.joint_names[k]}: PyBullet joint type {info[2]}"
+        lower, upper = info[8], info[9]
+        if lower > upper:  # pybullet's encoding of a continuous joint
+            assert robot.lower_limits[k] == -np.inf and robot.upper_limits[k] == np.inf
+        else:
+            assert (robot.lower_limits[k], robot.upper_limits[k]) == (lower, upper)
+        assert (robot.effort_limits[k], robot.velocity_limits[k]) == (info[10], info[11])
+    return dofs
+
+
+def assert_matches_pybullet(
+    robot: phri.Robot,
+    pb: PyBulletRobot,
+    base: str,
+    rng: np.random.Generator,
+    moving_base: int | None = None,
+) -> dict[str, float]:
+    """Over N_CONFIGS random configurations within limits: every frame's pose, its Jacobian at the frame
+    origin and at its link's COM, inverse dynamics and the mass matrix, against PyBullet.
+
+    PyBullet holds the whole tree. Its joints that are not the robot's are at 0 (the model locks
+    off-chain joints at 0) and still; joint `moving_base` (above the base: not in the model) is at a
+    random angle, so phri's base-frame results are compared with PyBullet's world-frame ones moved into
+    the base frame. Returns the worst error of each quantity."""
+    dofs = dof_indices(robot, pb)
+    frames = [f for f in robot.frame_names if f != base]
+    worst = dict.fromkeys(("pose", "pose_f32", "jacobian", "tau", "M"), 0.0)
+    qs = random_configurations(robot.lower_limits, robot.upper_limits, rng, N_CONFIGS)
+    vmax = robot.velocity_limits
+    qds = rng.uniform(-3 * vmax, 3 * vmax, qs.shape)
+    qdds = rng.uniform(-10.0, 10.0, qs.shape)
+    for q, qd, qdd in zip(qs, qds, qdds, strict=True):
+        where = f"q={q.tolist()}"
+        full, full_qd, full_qdd = (np.zeros(len(pb.joints)) for _ in range(3))
+        full[dofs], full_qd[dofs], full_qdd[dofs] = q, qd, qdd
+        if moving_base is not None:
+            full[moving_base] = rng.uniform(-3.0, 3.0)
+        set_q(pb, full)
+        p_base, r_base = world_t_link(pb, pb.links[base])
+        # Gravity is along −z of phri's base frame: the comparison needs a base z axis that is vertical.
+        assert_close(r_base[:, 2], [0.0, 0.0, 1.0], 1e-12, f"base z axis at {where}")
+        assert_close(robot.frame_pose(base, q), np.eye(4), 0.0, f"{base} (the base) pose at {where}")
+        for name in frames:
+            link = pb.links[name]
+            t = robot.frame_pose(name, q)
+            p_link, r_link, p_f32, r_f32 = link_frames(pb, link)
+            err = max(
+                np.abs(t[:3, 3] - r_base.T @ (p_link - p_base)).max(),
+                np.abs(t[:3, :3] - r_base.T @ r_link).max(),
+            )
+            assert err <= ATOL, f"{name} pose at {where}: {err:.3e}"
+            worst["pose"] = max(worst["pose"], err)
+            # pybullet's own single-precision link frame (fields 4, 5; see the module docstring)
+            assert_close(
+                t[:3, 3], r_base.T @ (p_f32 - p_base), F32_POSITION_ATOL, f"{name} field 4 at {where}"
+            )
+            assert_close(t[:3, :3], r_base.T @ r_f32, F32_ROTATION_ATOL, f"{name} field 5 at {where}")
+            worst["pose_f32"] = max(worst["pose_f32"], np.abs(t[:3, :3] - r_base.T @ r_f32).max())
+            jac = robot.jacobian(name, q)
+            rotate = np.kron(np.eye(2), r_base.T)  # world axes -> base axes, for v and ω
+            expected = rotate @ pybullet_jacobian(pb, link, np.zeros(3), full)[:, dofs]
+            err = np.abs(jac - expected).max()
+            assert err <= ATOL, f"{name} Jacobian at {where}: {err:.3e}"
+            worst["jacobian"] = max(worst["jacobian"], err)
+            com, _ = inertial_frame(pb, link)
+            shifted = jac.copy()
+            shifted[:3] -= np.cross(t[:3, :3] @ com, jac[3:], axisa=0, axisb=0, axisc=0)
+            expected_com = rotate @ pybullet_jacobian(pb, link, com, full)[:, dofs]
+            assert_close(shifted, expected_com, ATOL, f"{name} COM Jacobian at {where}")
+        tau = np.array(
+            p.calculateInverseDynamics(
+                pb.body, full.tolist(), full_qd.tolist(), full_qdd.tolist(), physicsClientId=pb.client
+            )
+        )[dofs]
+        err = np.abs(robot.inverse_dynamics(q, qd, qdd) - tau).max()
+        assert err <= ATOL, f"τ at {where}, qd={qd.tolist()}, qdd={qdd.tolist()}: {err:.3e}"
+        worst["tau"] = max(worst["tau"], err)
+        m = np.array(p.calculateMassMatrix(pb.body, full.tolist(), physicsClientId=pb.client))
+        err = np.abs(robot.mass_matrix(q) - m[np.ix_(dofs, dofs)]).max()
+        assert err <= ATOL, f"M at {where}: {err:.3e}"
+        worst["M"] = max(worst["M"], err)
+    return worst
+
+
+def test_mixed_revolute_prismatic_chain_matches_pybullet(load_pybullet, rng, tmp_path: Path):
+    text = mixed_chain_urdf()
+    robot = phri.Robot.from_urdf_string(text)
+    pb = load_string(load_pybullet, text, tmp_path, "mixed")
+    assert robot.name == "mixed" and robot.joint_names == ["j1", "j2", "j3", "j4"]
+    assert robot.frame_names == ["base", "l1", "l2", "l3", "l4", "tool"]
+    assert_same_joints(robot, pb, [p.JOINT_REVOLUTE, p.JOINT_PRISMATIC, p.JOINT_REVOLUTE, p.JOINT_PRISMATIC])
+    p_base, r_base = world_t_link(pb, -1)
+    assert_close(
+        np.hstack([p_base, r_base.ravel()]), np.hstack([np.zeros(3), np.eye(3).ravel()]), 1e-12, "base"
+    )
+    worst = assert_matches_pybullet(robot, pb, "base", rng)
+    print("mixed chain: worst", {k: f"{v:.1e}" for k, v in worst.items()})
+
+
+def test_sub_chain_of_a_tree_matches_pybullet(load_pybullet, rng, tmp_path: Path):
+    """base/tip select mount → a3 out of the tree; links off the chain are lumped into its bodies."""
+    text = TREE
+    robot = phri.Robot.from_urdf_string(text, base="mount", tip="a3")
+    pb = load_string(load_pybullet, text, tmp_path, "tree")
+    assert robot.joint_names == ["t1", "t2", "t3"]
+    assert sorted(robot.frame_names) == sorted(TREE_FRAMES)  # neither ground nor other: not below mount
+    assert_same_joints(robot, pb, [p.JOINT_REVOLUTE, p.JOINT_PRISMATIC, p.JOINT_REVOLUTE])
+    assert np.isinf(robot.lower_limits[2]) and np.isinf(robot.upper_limits[2])  # t3 is continuous
+    names = [p.getJointInfo(pb.body, j, physicsClientId=pb.client)[1].decode() for j in pb.joints]
+    worst = assert_matches_pybullet(robot, pb, "mount", rng, moving_base=names.index("turntable"))
+    print("tree sub-chain: worst", {k: f"{v:.1e}" for k, v in worst.items()})
+
+
+def test_prismatic_axis_that_is_not_a_unit_vector_is_normalized(load_pybullet, rng, tmp_path: Path):
+    """URDF axes are unit vectors; phri normalizes one that is not, for prismatic joints as for revolute
+    ones, and so do PyBullet's Jacobian, inverse dynamics and mass matrix. PyBullet's getLinkState does
+    not: it moves prismatic joint k by q_k·|axis_k| along the unit axis. That disagreement is explained
+    here (it vanishes once q is stretched so) rather than hidden by a tolerance."""
+    long_axes = ("0.3 0.4 0.866", "-0.2 0.9 0.3", "1.2 -0.9 2.0", "0.5 0.5 0.5")  # prismatic: 0.97, 0.87
+    vectors = [np.array(a.split(), dtype=float) for a in long_axes]
+    unit_axes = tuple(" ".join(repr(float(x)) for x in v / np.linalg.norm(v)) for v in vectors)
+    text = mixed_chain_urdf(long_axes)
+    robot = phri.Robot.from_urdf_string(text)
+    unit = phri.Robot.from_urdf_string(mixed_chain_urdf(unit_axes))
+    qs = random_configurations(robot.lower_limits, robot.upper_limits, rng, N_CONFIGS)
+    qds, qdds = rng.uniform(-1, 1, qs.shape), rng.uniform(-5, 5, qs.shape)
+    for frame in robot.frame_names:
+        assert_close(robot.frame_pose(frame, qs), unit.frame_pose(frame, qs), 1e-15, f"{frame} pose")
+        assert_close(robot.jacobian(frame, qs), unit.jacobian(frame, qs), 1e-15, f"{frame} Jacobian")
+    assert_close(robot.inverse_dynamics(qs, qds, qdds), unit.inverse_dynamics(qs, qds, qdds), 1e-12, "τ")
+    assert_close(robot.mass_matrix(qs), unit.mass_matrix(qs), 1e-13, "M")
+
+    pb = load_string(load_pybullet, text, tmp_path, "long_axes")
+    stretch = np.array([1.0, np.linalg.norm(vectors[1]), 1.0, np.linalg.norm(vectors[3])])
+    worst_unstretched = 0.0
+    for q, qd, qdd in zip(qs, qds, qdds, strict=True):
+        where = f"q={q.tolist()}"
+        set_q(pb, q)
+        for name in robot.frame_names[1:]:
+            link = pb.links[name]
+            p_link, r_link, _, _ = link_frames(pb, link)
+            t = robot.frame_pose(name, q * stretch)
+            assert_close(t[:3, 3], p_link, ATOL, f"{name} position (q stretched) at {where}")
+            assert_close(t[:3, :3], r_link, ATOL, f"{name} rotation at {where}")
+            worst_unstretched = max(
+                worst_unstretched, np.abs(robot.frame_pose(name, q)[:3, 3] - p_link).max()
+            )
+            expected = pybullet_jacobian(pb, link, np.zeros(3), q)
+            assert_close(robot.jacobian(name, q), expected, ATOL, f"{name} Jacobian at {where}")
+        tau = p.calculateInverseDynamics(
+            pb.body, q.tolist(), qd.tolist(), qdd.tolist(), physicsClientId=pb.client
+        )
+        assert_close(robot.inverse_dynamics(q, qd, qdd), tau, ATOL, f"τ at {where}")
+        m = p.calculateMassMatrix(pb.body, q.tolist(), physicsClientId=pb.client)
+        assert_close(robot.mass_matrix(q), m, ATOL, f"M at {where}")
+    assert worst_unstretched > 1e-3  # the stretch above is what PyBullet's getLinkState does
+
+
+def rpy_matrix(rpy: str) -> np.ndarray:
+    """A URDF origin's rotation: roll, pitch, yaw about the fixed x, y, z axes, R = Rz·Ry·Rx."""
+    r, p_, y = (float(v) for v in rpy.split())
+    rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    ry = np.array([[np.cos(p_), 0, np.sin(p_)], [0, 1, 0], [-np.sin(p_), 0, np.cos(p_)]])
+    rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def origin_rpy(element: ET.Element) -> str:
+    origin = element.find("origin")
+    return "0 0 0" if origin is None else origin.get("rpy", "0 0 0")
+
+
+def test_cup_axis_is_link_7_x_axis(load_pybullet, rng, tmp_path: Path):
+    """The held cup (cup.urdf, attached at cup_frame by the simulator) is a cylinder, whose axis is its
+    geometry frame's z. Through the URDF's origins that axis is +x of link_7, the axis that the
+    simulated participant's cup_tilt measures; phri's frames and PyBullet's visual shape agree."""
+    from phri.sim.participant import cup_tilt
+    from phri.sim.world import CUP_FRAME as SIM_CUP_FRAME
+    from phri.sim.world import arm_with_cup_urdf
+
+    assert SIM_CUP_FRAME == CUP_FRAME
+    text = arm_with_cup_urdf()
+    doc = ET.fromstring(text)
+    parent_joint = {j.find("child").get("link"): j for j in doc.iter("joint")}  # type: ignore[union-attr]
+    path, name = [], "cup"
+    while name != LINK_7:
+        path.insert(0, parent_joint[name])
+        name = path[0].find("parent").get("link")  # type: ignore[union-attr]
+    assert [j.find("child").get("link") for j in path] == [CUP_FRAME, "cup"]  # type: ignore[union-attr]
+    r_link7_cup = rpy_matrix(origin_rpy(path[0])) @ rpy_matrix(origin_rpy(path[1]))
+    (cup,) = [link for link in doc.iter("link") if link.get("name") == "cup"]
+    geometry = {}
+    for kind in ("visual", "collision"):
+        (element,) = cup.findall(kind)
+        assert element.find("geometry/cylinder") is not None, f"the cup's {kind} is not a cylinder"
+        geometry[kind] = rpy_matrix(origin_rpy(element))
+        axis = r_link7_cup @ geometry[kind] @ np.array([0.0, 0.0, 1.0])
+        assert_close(axis, [1.0, 0.0, 0.0], 1e-10, f"the cup's {kind} cylinder axis in link_7's frame")
+
+    robot = phri.Robot.from_urdf_string(text)
+    assert robot.joint_names == phri.Robot.jaco2().joint_names
+    pb = load_string(load_pybullet, text, tmp_path, "arm_with_cup")
+    (visual,) = [
+        v for v in p.getVisualShapeData(pb.body, physicsClientId=pb.client) if v[1] == pb.links["cup"]
+    ]
+    assert visual[2] == p.GEOM_CYLINDER
+    com, r_inertial = inertial_frame(pb, pb.links["cup"])  # PyBullet's visual frame is relative to it
+    assert_close(
+        np.hstack([com, r_inertial.ravel()]), np.hstack([np.zeros(3), np.eye(3).ravel()]), 0.0, "cup COM"
+    )
+    for q in random_configurations(robot.lower_limits, robot.upper_limits, rng, N_CONFIGS):
+        link_7 = robot.frame_pose(LINK_7, q)
+        relative = link_7[:3, :3].T @ robot.frame_pose("cup", q)[:3, :3]
+        assert_close(relative, r_link7_cup, 1e-12, "the URDF's cup orientation as phri reads it")
+        axis = robot.frame_pose("cup", q)[:3, :3] @ geometry["visual"] @ np.array([0.0, 0.0, 1.0])
+        assert_close(axis, link_7[:3, 0], 1e-10, f"cup axis vs link_7 x at q={q.tolist()}")
+        assert np.cos(cup_tilt(link_7[:3, :3])) == pytest.approx(axis[2], abs=1e-10)
+        set_q(pb, q)
+        st = p.getLinkState(
+            pb.body, pb.links["cup"], computeForwardKinematics=True, physicsClientId=pb.client
+        )
+        pb_axis = quat_to_matrix(st[1]) @ quat_to_matrix(visual[6]) @ np.array([0.0, 0.0, 1.0])
+        assert_close(pb_axis, link_7[:3, 0], 1e-10, f"PyBullet's cylinder axis vs link_7 x at q={q.tolist()}")
 
 
 # --------------------------------------------------------------------------------------------------

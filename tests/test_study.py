@@ -575,7 +575,7 @@ def test_pool_workers_run_the_drivers_tasks_and_read_no_task_file(
     start with the first episode, after the file is deleted, gives the reference rows."""
     config, task_file = study_with_a_task_file(tmp_path)
 
-    def make_backend_then_delete_the_task_file(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+    def make_backend_then_delete_the_task_file(*args, **kwargs):
         backend = make_backend(*args, **kwargs)
         task_file.unlink()  # loaded by the driver; no worker has started yet
         return backend
@@ -915,6 +915,22 @@ def test_cli_errors_are_clear(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "not valid TOML" in capsys.readouterr().err
     assert cli(["report", str(tmp_path / "nothing")]) == 2
     assert "no study.json" in capsys.readouterr().err
+
+
+def test_an_unreachable_ray_cluster_is_a_clear_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import phri.study.run as run
+
+    def unreachable(*args, **kwargs):
+        raise ConnectionError("Could not find any running Ray instance.")
+
+    monkeypatch.setattr(run, "make_backend", unreachable)
+    args = ["study", str(tmp_path / "s"), "--backend", "ray", "--address", "auto", "--no-progress"]
+    assert cli([*args, *TINY_ARGS]) == 2
+    err = capsys.readouterr().err
+    assert "phri study: error: cannot reach the Ray cluster at --address 'auto'" in err
+    assert "Traceback" not in err
 
 
 @pytest.mark.slow

@@ -192,6 +192,10 @@ def cmd_study(args: argparse.Namespace) -> int:
             )  # fmt: skip
     except (PhriError, ImportError, FileExistsError) as e:
         return _fail("study", e)
+    except ConnectionError as e:  # e.g. `--backend ray --address auto` with no cluster running
+        return _fail(
+            "study", ConnectionError(f"cannot reach the Ray cluster at --address {args.address!r}: {e}")
+        )
     except KeyboardInterrupt as e:
         how = "terminated (SIGTERM)" if isinstance(e, _Terminated) else "interrupted"
         print(

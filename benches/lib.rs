@@ -100,15 +100,9 @@ pub fn study_planner(model: &Arc<RobotModel>, task: &StudyTask, waypoints: usize
 }
 
 /// Algorithm 1 on `task` as the simulated study runs it (initial task weight 0, the task's gain and
-/// clip, the "all" rule, original thresholds and deformation), sampling every `sample_period` [s],
-/// with at most `replan_iterations` Newton iterations per call (0: none). Construction plans cold.
-pub fn study_learner(
-    model: &Arc<RobotModel>,
-    task: &StudyTask,
-    waypoints: usize,
-    sample_period: f64,
-    replan_iterations: usize,
-) -> Learner {
+/// clip, the "all" rule, original thresholds and deformation) with `params` (its duration set to
+/// the task's). Construction plans cold.
+pub fn study_learner(model: &Arc<RobotModel>, task: &StudyTask, waypoints: usize, params: LearnerParams) -> Learner {
     let (features, optimizer) = study_planner(model, task, waypoints);
     let update = WeightUpdate::new(UpdateParams {
         step: vec![0.0, task.gain],
@@ -121,7 +115,7 @@ pub fn study_learner(
     .expect("valid update");
     let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).expect("valid thresholds");
     let deformation = Deformation::new(DeformParams::default()).expect("default deformation");
-    let params = LearnerParams { sample_period, duration: DURATION, replan_iterations, ..Default::default() };
+    let params = LearnerParams { duration: DURATION, ..params };
     Learner::new(params, features, deformation, update, detector, optimizer, &[1.0, 0.0], &task.start, &task.goal)
         .expect("valid learner")
 }

@@ -16,8 +16,9 @@
 //! {0.1, 0.3} × true; and every observe of 1 s pushes (10 samples at 10 Hz, each an update and a
 //! replan) starting at t = 2, 4, 6, 8 s on fresh learners.
 //!
-//! The last rows repeat the pushes with `LearnerParams::replan_iterations` = 8: every call that does
-//! work (the pushes, and the 1 kHz ticks that go on with an unfinished replan) is timed.
+//! The observe rows repeat the pushes with seed plans (`LearnerParams::seeds` = 5) and with a
+//! per-call budget (`LearnerParams::replan_iterations` = 8): every call that does work (the pushes,
+//! and the 1 kHz ticks that go on with an unfinished replan) is timed.
 //!
 //! `cargo bench -p phri_benches --bench trajopt`; under `cargo test --benches` each criterion
 //! benchmark runs once and the timing pass runs one repetition.
@@ -29,6 +30,7 @@ use std::time::{Duration, Instant};
 use criterion::{criterion_group, BatchSize, BenchmarkId, Criterion, Throughput};
 use phri_benches::{corrective_push, jaco2, study_learner, study_planner, study_tasks, StudyTask};
 use phri_core::features::FeatureSet;
+use phri_core::learner::LearnerParams;
 use phri_core::trajopt::{TrajectoryOptimizer, TrajoptInfo};
 use phri_core::RobotModel;
 
@@ -93,7 +95,7 @@ fn observe(c: &mut Criterion) {
         let t = 4.0;
         // The first sample of a push on a fresh learner (task weight 0): deform, update, replan.
         let setup = || {
-            let learner = study_learner(&model, &task, 31, 0.1, 0);
+            let learner = study_learner(&model, &task, 31, LearnerParams::default());
             let tau = corrective_push(&model, &learner, &task, t);
             (learner, tau)
         };
@@ -179,42 +181,35 @@ fn tails(reps: usize) {
         warm_all.extend_from_slice(&samples);
     }
     row("warm all tasks", &mut warm_all, "");
-    let mut observe_all = Vec::new();
-    for task in study_tasks() {
-        let mut samples = Vec::new();
-        let mut replans = 0;
-        for _ in 0..reps.max(1) {
-            for t0 in [2.0, 4.0, 6.0, 8.0] {
-                let mut learner = study_learner(&model, &task, 31, 0.1, 0);
-                for k in 0..10 {
-                    let t = t0 + 0.1 * k as f64;
-                    let tau = corrective_push(&model, &learner, &task, t);
-                    let began = Instant::now();
-                    let obs = learner.observe(t, &tau).expect("valid sample");
-                    samples.push(began.elapsed());
-                    replans += usize::from(obs.replanned);
-                }
-            }
-        }
-        row(&format!("observe {}", task.name), &mut samples, &format!("{replans} replans"));
-        observe_all.extend_from_slice(&samples);
+    let variants = [
+        ("", LearnerParams::default()),
+        (" seeds 5", LearnerParams { seeds: SEEDS, ..Default::default() }),
+        (" budget 8", LearnerParams { replan_iterations: REPLAN_BUDGET, ..Default::default() }),
+    ];
+    for (label, params) in variants {
+        observe_rows(&model, label, &params, reps);
     }
-    row("observe all tasks", &mut observe_all, "");
-    // The same pushes with a per-call replan budget: the 1 kHz ticks between samples go on with an
-    // unfinished replan, so every call is timed (those that did work), until the plan converges.
-    let mut budget_all = Vec::new();
+}
+
+/// Seed plans per learned weight in the seeded rows (`LearnerParams::seeds`).
+const SEEDS: usize = 5;
+
+/// One second of 1 kHz ticks from each of t0 = 2, 4, 6, 8 s on fresh learners with `params`, a
+/// corrective push at every 10 Hz sample: times every `observe` call that replanned (the pushes, and
+/// with a budget the ticks that go on with an unfinished replan, until it converges).
+fn observe_rows(model: &Arc<RobotModel>, label: &str, params: &LearnerParams, reps: usize) {
+    let mut all = Vec::new();
     for task in study_tasks() {
         let mut samples = Vec::new();
         let mut longest = 0;
         for _ in 0..reps.max(1) {
             for t0 in [2.0, 4.0, 6.0, 8.0] {
-                let mut learner = study_learner(&model, &task, 31, 0.1, REPLAN_BUDGET);
-                let mut k = 0usize;
-                let mut pending_ticks = 0;
+                let mut learner = study_learner(model, &task, 31, params.clone());
+                let (mut k, mut pending_ticks) = (0usize, 0);
                 while k < 1000 || learner.replan_pending() {
                     let t = t0 + 1e-3 * k as f64;
-                    let pushing = k < 1000 && k.is_multiple_of(100); // 10 samples at 10 Hz, as above
-                    let tau = if pushing { corrective_push(&model, &learner, &task, t) } else { [0.0; NQ] };
+                    let pushing = k < 1000 && k.is_multiple_of(100);
+                    let tau = if pushing { corrective_push(model, &learner, &task, t) } else { [0.0; NQ] };
                     let began = Instant::now();
                     let obs = learner.observe(t, &tau).expect("valid sample");
                     let elapsed = began.elapsed();
@@ -227,11 +222,11 @@ fn tails(reps: usize) {
                 }
             }
         }
-        let extra = format!("{} calls that replanned; a replan spans up to {} ticks", samples.len(), longest + 1);
-        row(&format!("observe {} budget {REPLAN_BUDGET}", task.name), &mut samples, &extra);
-        budget_all.extend_from_slice(&samples);
+        let extra = format!("{} replanning calls; a replan spans up to {} ticks", samples.len(), longest + 1);
+        row(&format!("observe {}{label}", task.name), &mut samples, &extra);
+        all.extend_from_slice(&samples);
     }
-    row(&format!("observe all budget {REPLAN_BUDGET}"), &mut budget_all, "");
+    row(&format!("observe all{label}"), &mut all, "");
 }
 
 /// Newton iterations per `observe` call in the budgeted rows (`LearnerParams::replan_iterations`).

@@ -516,3 +516,15 @@ def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot):
         assert capped.observe(4.0 + 1e-3 * ticks, np.zeros(7)) == (False, False, True)
     np.testing.assert_allclose(capped.plan, full.plan, rtol=0, atol=1e-5)
     assert len(capped.plans()) == ticks + 2
+
+
+def test_seed_plans_shorten_the_replan_after_a_push(make, robot):
+    seeded, plain = make(seeds=3), make()
+    tau = push_torque(robot, plain, 4.0)
+    seeded.observe(4.0, tau)
+    plain.observe(4.0, tau)
+    a, b = seeded.interactions()[0]["replan"], plain.interactions()[0]["replan"]
+    assert a.converged and b.converged
+    assert a.iterations < b.iterations and a.cost <= b.cost + 1e-9
+    with pytest.raises(ex.InvalidParameterError, match="^seeds must be 0 .none. or at least 2"):
+        make(seeds=1)

@@ -32,7 +32,17 @@ pub struct LearnerParams {
     /// next calls, every tick, the robot blending into each better plan as it comes; one call then
     /// stays within the budget's time (about 70 µs an iteration at N = 31 here) whatever the push.
     pub replan_iterations: usize,
+    /// Seed plans per learned weight (0: none). With s seeds, the learner plans at construction for
+    /// s evenly spaced values of every learned weight between its bounds (s^L plans for L learned
+    /// weights, at most [`MAX_SEEDS`]), and each replan starts from whichever of the current plan
+    /// and the seed nearest the new weights costs less at them. The authors' later code cached such
+    /// seeds on a weight grid against trajopt's local minima; here they also make the replan after a
+    /// large update short.
+    pub seeds: usize,
 }
+
+/// Most seed plans a learner keeps (`LearnerParams::seeds`).
+pub const MAX_SEEDS: usize = 64;
 
 impl Default for LearnerParams {
     fn default() -> Self {
@@ -43,6 +53,7 @@ impl Default for LearnerParams {
             interpolation: Interpolation::Cubic,
             transition_speed: DEFAULT_TRANSITION_SPEED,
             replan_iterations: 0,
+            seeds: 0,
         }
     }
 }
@@ -105,6 +116,9 @@ pub struct Learner {
     speed_limits: Vec<f64>,
     /// A replan cut short by `replan_iterations` is still converging.
     replan_pending: bool,
+    /// Converged plans on a weight grid (`LearnerParams::seeds`).
+    seeds: Seeds,
+    seed_grad: Vec<f64>,
     // Workspaces.
     candidate: Vec<f64>,
     tracked: Vec<f64>,
@@ -179,6 +193,7 @@ impl Learner {
         let full_cap = optimizer.params().max_iterations;
         let mut plan0 = vec![0.0; m * n];
         optimizer.solve(&mut features, &weights, start, goal, None, &mut plan0)?;
+        let seeds = Seeds::plan(params.seeds, &update, &weights, &mut features, &mut optimizer, start, goal)?;
         if params.replan_iterations > 0 {
             // The initial plan converged above; replans keep to the per-tick budget.
             optimizer.set_max_iterations(params.replan_iterations.min(full_cap))?;
@@ -199,6 +214,8 @@ impl Learner {
             next_sample: 0.0,
             speed_limits,
             replan_pending: false,
+            seeds,
+            seed_grad: vec![0.0; m * n],
             candidate: vec![0.0; m * n],
             tracked: vec![0.0; m * n],
             rates: vec![0.0; 2 * n],
@@ -348,14 +365,17 @@ impl Learner {
     /// Replans over [0, T] from the original start, warm-started from the current plan, within the
     /// per-tick budget, and switches to the result at `t`.
     fn replan(&mut self, t: f64) -> Result<TrajoptInfo> {
-        let info = self.optimizer.solve(
-            &mut self.features,
-            &self.weights,
-            &self.start,
-            &self.goal,
-            Some(self.plan.waypoints()),
-            &mut self.candidate,
-        )?;
+        let mut init = self.plan.waypoints();
+        if let Some(seed) = self.seeds.nearest(&self.weights) {
+            let seed = &self.seeds.plans[seed];
+            let (here, _) = self.optimizer.objective(&mut self.features, &self.weights, init, &mut self.seed_grad)?;
+            let (there, _) = self.optimizer.objective(&mut self.features, &self.weights, seed, &mut self.seed_grad)?;
+            if there < here {
+                init = seed;
+            }
+        }
+        let info =
+            self.optimizer.solve(&mut self.features, &self.weights, &self.start, &self.goal, Some(init), &mut self.candidate)?;
         self.plan.switch_to(&self.candidate, t, &self.speed_limits)?;
         self.replan_pending = self.params.replan_iterations > 0 && !info.converged;
         self.history.plans.push((t, self.candidate.clone()));
@@ -379,5 +399,81 @@ impl Learner {
             }
         }
         relevance(&self.delta_phi, &self.sensitivity, &self.u_h, &mut self.relevance)
+    }
+}
+
+/// Plans converged on a grid of the learned weights (see [`LearnerParams::seeds`]).
+#[derive(Default)]
+struct Seeds {
+    weights: Vec<Vec<f64>>,
+    plans: Vec<Vec<f64>>,
+    /// 1 / (upper − lower) of each learned weight, 0 for the others: distances in bound units.
+    scale: Vec<f64>,
+}
+
+impl Seeds {
+    /// `per_weight` values of every learned weight between its bounds, the other weights as in
+    /// `weights`, each planned cold to convergence.
+    #[allow(clippy::too_many_arguments)]
+    fn plan(
+        per_weight: usize,
+        update: &WeightUpdate,
+        weights: &[f64],
+        features: &mut FeatureSet,
+        optimizer: &mut TrajectoryOptimizer,
+        start: &[f64],
+        goal: &[f64],
+    ) -> Result<Self> {
+        if per_weight == 0 {
+            return Ok(Seeds::default());
+        }
+        if per_weight == 1 {
+            return Err(PhriError::invalid("seeds", "must be 0 (none) or at least 2 values per learned weight, got 1"));
+        }
+        let p = update.params();
+        let learned: Vec<usize> = (0..weights.len()).filter(|&k| p.learned[k]).collect();
+        if let Some(&k) = learned.iter().find(|&&k| !(p.lower[k].is_finite() && p.upper[k].is_finite())) {
+            return Err(PhriError::invalid(
+                "seeds",
+                format!("need finite bounds for every learned weight; weight {k} has [{}, {}]", p.lower[k], p.upper[k]),
+            ));
+        }
+        let count = (per_weight as f64).powi(learned.len() as i32);
+        if count > MAX_SEEDS as f64 {
+            return Err(PhriError::invalid(
+                "seeds",
+                format!(
+                    "{per_weight} per learned weight make {count} plans for {} learned weights, more than {MAX_SEEDS}",
+                    learned.len()
+                ),
+            ));
+        }
+        let mut seeds = Seeds { scale: vec![0.0; weights.len()], ..Default::default() };
+        for &k in &learned {
+            let span = p.upper[k] - p.lower[k];
+            seeds.scale[k] = if span > 0.0 { 1.0 / span } else { 0.0 };
+        }
+        let n_plan = optimizer.waypoints() * features.model().nq();
+        for index in 0..count as usize {
+            let mut w = weights.to_vec();
+            let mut rest = index;
+            for &k in &learned {
+                let i = rest % per_weight;
+                rest /= per_weight;
+                w[k] = p.lower[k] + (p.upper[k] - p.lower[k]) * i as f64 / (per_weight - 1) as f64;
+            }
+            let mut plan = vec![0.0; n_plan];
+            optimizer.solve(features, &w, start, goal, None, &mut plan)?;
+            seeds.weights.push(w);
+            seeds.plans.push(plan);
+        }
+        Ok(seeds)
+    }
+
+    /// The seed whose weights are nearest `weights` (in units of each learned weight's bounds).
+    fn nearest(&self, weights: &[f64]) -> Option<usize> {
+        let distance =
+            |s: &[f64]| -> f64 { s.iter().zip(weights).zip(&self.scale).map(|((a, b), c)| ((a - b) * c).powi(2)).sum() };
+        (0..self.weights.len()).min_by(|&a, &b| distance(&self.weights[a]).total_cmp(&distance(&self.weights[b])))
     }
 }

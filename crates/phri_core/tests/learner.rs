@@ -187,3 +187,61 @@ fn a_replan_budget_spreads_the_replan_over_ticks_and_ends_on_the_same_plan() {
     // Nothing pending: quiet ticks do nothing.
     assert!(!capped.observe(t + 0.5, &[0.0; 7]).unwrap().replanned);
 }
+
+#[test]
+fn seed_plans_shorten_the_replan_after_a_large_update() {
+    // (Starting from the better of the current plan and the seed does not promise a better optimum in
+    // general; on these tasks it ends no worse.)
+    for (feature, start, goal, gain, upper) in
+        [("laptop", PICK_BASIC, PLACE_HIGHER, 100.0, 10.0), ("table", PICK_BASIC, PLACE_LOWER, 2.0, 1.0)]
+    {
+        let seeded = LearnerParams { seeds: 5, ..Default::default() };
+        let mut with = learner_with(feature, start, goal, gain, upper, UpdateRule::All, seeded);
+        let mut without = learner(feature, start, goal, gain, upper, UpdateRule::All, true);
+        assert_eq!(with.plan().waypoints(), without.plan().waypoints(), "{feature}: the initial plan is the same");
+        let t = 4.0;
+        let force = match feature {
+            "table" => Vector3::new(0.0, 0.0, -25.0),
+            _ => {
+                let p = hand(&without, t);
+                Vector3::new(p.x + 0.7929, p.y + 0.1, 0.0).normalize() * 25.0
+            }
+        };
+        let tau = push(&without, t, force, Vector3::zeros());
+        with.observe(t, &tau).unwrap();
+        without.observe(t, &tau).unwrap();
+        assert_eq!(with.weights(), without.weights());
+        let (a, b) = (with.history().interactions[0].replan.unwrap(), without.history().interactions[0].replan.unwrap());
+        assert!(a.converged && b.converged);
+        assert!(a.iterations * 2 <= b.iterations, "{feature}: seeded {} iterations vs {}", a.iterations, b.iterations);
+        assert!(a.cost <= b.cost + 1e-9, "{feature}: the seeded plan costs {} against {}", a.cost, b.cost);
+    }
+}
+
+#[test]
+fn seed_settings_are_checked() {
+    let make = |seeds, upper| {
+        let params = LearnerParams { seeds, ..Default::default() };
+        let model = Arc::new(jaco2());
+        let l7 = model.frame_id("j2s7s300_link_7").unwrap();
+        let fs = FeatureSet::from_names(model, l7, &["efficiency", "table"], &SceneParams::default()).unwrap();
+        let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
+        let update = WeightUpdate::new(UpdateParams {
+            step: vec![0.0, 2.0],
+            lower: vec![1.0, 0.0],
+            upper: vec![1.0, upper],
+            learned: vec![false, true],
+            ranges: vec![1.0, 1.0],
+            rule: UpdateRule::All,
+        })
+        .unwrap();
+        let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
+        let deformation = Deformation::new(DeformParams::default()).unwrap();
+        Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &deg(PICK_BASIC), &deg(PLACE_LOWER))
+    };
+    let message = |r: Result<Learner, phri_core::PhriError>| r.err().map(|e| e.to_string()).unwrap_or_default();
+    assert!(message(make(1, 1.0)).starts_with("seeds must be 0 (none) or at least 2"));
+    assert!(message(make(3, f64::INFINITY)).starts_with("seeds need finite bounds for every learned weight; weight 1"));
+    assert!(message(make(65, 1.0)).contains("more than 64"));
+    assert!(make(3, 1.0).is_ok());
+}

@@ -21,6 +21,8 @@ use crate::update::{PyUpdateInfo, PyWeightUpdate};
 /// `transition_speed` × the velocity limits (0: switch at once, as the original did).
 /// `replan_iterations` caps the Newton iterations of a replan per `observe` call (0: to
 /// convergence at once); an unfinished replan goes on at the next calls (`replan_pending`).
+/// `seeds` plans s values of every learned weight between its bounds at construction (s^L plans,
+/// at most 64) and starts each replan from the better of the current plan and the nearest seed.
 #[pyclass(name = "Learner", module = "phri._phri")]
 pub struct PyLearner {
     learner: Learner,
@@ -38,7 +40,7 @@ impl PyLearner {
     #[pyo3(signature = (
         features, deformation, update, detector, optimizer, weights, start, goal, *,
         duration = 15.0, sample_period = 0.1, interpolation = "cubic", learning = true,
-        transition_speed = 0.8, replan_iterations = 0
+        transition_speed = 0.8, replan_iterations = 0, seeds = 0
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -57,6 +59,7 @@ impl PyLearner {
         learning: bool,
         transition_speed: f64,
         replan_iterations: usize,
+        seeds: usize,
     ) -> PyResult<Self> {
         let interpolation = match interpolation {
             "cubic" => Interpolation::Cubic,
@@ -70,7 +73,8 @@ impl PyLearner {
         let weights = vector("weights", &weights, set.len())?.into_owned();
         let start = vector("start", &start, n)?.into_owned();
         let goal = vector("goal", &goal, n)?.into_owned();
-        let params = LearnerParams { learning, sample_period, duration, interpolation, transition_speed, replan_iterations };
+        let params =
+            LearnerParams { learning, sample_period, duration, interpolation, transition_speed, replan_iterations, seeds };
         let (deformation, update, detector, optimizer) =
             (deformation.deformation.clone(), update.update.clone(), detector.detector.clone(), optimizer.optimizer.clone());
         let learner = py

@@ -203,3 +203,22 @@ fn a_payload_adds_its_weight_to_the_gravity_torques() {
     let mut tau = vec![0.0; 7];
     assert!(m.inverse_dynamics(&q, &[1e200; 7], &[0.0; 7], &mut m.data(), &mut tau).is_err());
 }
+
+#[test]
+fn axis_permutation_joint_frames_take_the_fast_path_and_agree_with_the_product() {
+    let m = common::jaco2();
+    // The shipped URDF writes its rpy angles as multiples of π/2 to full precision.
+    assert!(m.joints.iter().all(|j| j.permutation.is_some()), "every JACO2 joint frame is an axis permutation");
+    let mut generic = m.clone();
+    generic.joints.iter_mut().for_each(|j| j.permutation = None);
+    let (mut a, mut b) = (m.data(), generic.data());
+    let frame = m.frame_id("j2s7s300_end_effector").unwrap();
+    for k in 0..50 {
+        let u: Vec<f64> = (0..7).map(|j| (0.37 * (k * 7 + j) as f64).sin() * 0.5 + 0.5).collect();
+        let q = common::within_limits(&m, &u);
+        m.forward_kinematics(&q, &mut a).unwrap();
+        generic.forward_kinematics(&q, &mut b).unwrap();
+        let (pa, pb) = (m.frame_pose(frame, &a), generic.frame_pose(frame, &b));
+        assert!((pa.to_homogeneous() - pb.to_homogeneous()).amax() < 1e-15, "q = {q:?}");
+    }
+}

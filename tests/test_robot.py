@@ -1080,3 +1080,15 @@ def test_random_configurations_helper_respects_limits(robot: phri.Robot):
     assert (qs[:, limited] >= robot.lower_limits[limited]).all()
     assert (qs[:, limited] <= robot.upper_limits[limited]).all()
     assert (qs[:, ~limited] >= 0).all() and (qs[:, ~limited] < 2 * np.pi).all()
+
+
+@pytest.mark.parametrize(
+    "bad", ["abc", ["a"] * 7, [[1.0, 2.0], [3.0]], object()], ids=["str", "strs", "ragged", "obj"]
+)
+def test_inputs_that_are_not_numbers_are_a_type_error_naming_the_argument(robot: phri.Robot, bad) -> None:
+    with pytest.raises(
+        TypeError, match=r"^argument 'q': expected numbers \(an array, a list or a number\), got "
+    ):
+        robot.gravity(bad)
+    with pytest.raises(TypeError, match=r"^argument 'waypoints': expected numbers"):
+        phri.TimedTrajectory(bad, 15.0)

@@ -3,12 +3,34 @@
 use std::borrow::Cow;
 
 use numpy::{AllowTypeChange, PyArrayLikeDyn, PyUntypedArrayMethods};
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 
 use crate::errors::{error, Kind};
 
-/// Any array-like of floats (lists, tuples, arrays of any numeric dtype).
-pub type ArrayIn<'py> = PyArrayLikeDyn<'py, f64, AllowTypeChange>;
+/// Any array-like of floats (lists, tuples, arrays of any numeric dtype). What numpy cannot read
+/// as numbers (strings, ragged lists, arbitrary objects) is a TypeError, which PyO3 prefixes with
+/// the argument's name ("argument 'q': expected numbers ...").
+pub struct ArrayIn<'py>(PyArrayLikeDyn<'py, f64, AllowTypeChange>);
+
+impl<'py> std::ops::Deref for ArrayIn<'py> {
+    type Target = PyArrayLikeDyn<'py, f64, AllowTypeChange>;
+
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl<'a, 'py> FromPyObject<'a, 'py> for ArrayIn<'py> {
+    type Error = PyErr;
+
+    fn extract(ob: Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
+        PyArrayLikeDyn::extract(ob).map(ArrayIn).map_err(|e| {
+            let kind = ob.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "object".into());
+            PyTypeError::new_err(format!("expected numbers (an array, a list or a number), got {kind}: {e}"))
+        })
+    }
+}
 
 /// Row-major values of an input that is either one row `(n,)` or a batch `(N, n)`.
 pub struct Rows<'a> {

@@ -40,6 +40,18 @@ def random_spd(rng: np.random.Generator, scale: float) -> np.ndarray:
     return scale * (a @ a.T / 7 + np.eye(7))
 
 
+def draw_gains(gen, kind: str, k_max: float):
+    """(K, B, ImpedanceController kwargs): the defaults, random diagonal gains (stiffness in [10, k_max],
+    damping a tenth of that range), or random full symmetric positive definite matrices."""
+    if kind == "default":
+        return K_DEFAULT, B_DEFAULT, {}
+    if kind == "diagonal":
+        k, b = gen.uniform(10, k_max, 7), gen.uniform(1, k_max / 10, 7)
+    else:
+        k, b = random_spd(gen, 60.0), random_spd(gen, 6.0)
+    return k, b, {"stiffness": k, "damping": b}
+
+
 def as_matrix(gain: np.ndarray) -> np.ndarray:
     return np.diag(gain) if gain.ndim == 1 else gain
 
@@ -57,14 +69,7 @@ def reference_eq6(robot, q, qd, q_ref, qd_ref, k, b, gravity=True):
 @pytest.mark.parametrize("gains", ["default", "diagonal", "full"])
 @pytest.mark.parametrize("gravity", [True, False])
 def test_eq6_matches_numpy_reference(jaco2, gen, gains, gravity):
-    if gains == "default":
-        k, b, kwargs = K_DEFAULT, B_DEFAULT, {}
-    elif gains == "diagonal":
-        k, b = gen.uniform(10, 200, 7), gen.uniform(1, 20, 7)
-        kwargs = {"stiffness": k, "damping": b}
-    else:
-        k, b = random_spd(gen, 60.0), random_spd(gen, 6.0)
-        kwargs = {"stiffness": k, "damping": b}
+    k, b, kwargs = draw_gains(gen, gains, k_max=200.0)
     c = phri.ImpedanceController(jaco2, gravity_compensation=gravity, **kwargs)
     saturated_seen = 0
     for _ in range(200):
@@ -157,11 +162,7 @@ def reference_implicit(robot, q, qd, q_ref, qd_ref, dt, k, b, gravity=True):
 @pytest.mark.parametrize("gains", ["default", "full"])
 def test_eq5_matches_numpy_reference(jaco2, gen, inertia, gains):
     m_r = gen.uniform(0.05, 1.0, 7) if inertia == "diagonal" else random_spd(gen, 0.3)
-    if gains == "default":
-        k, b, kwargs = K_DEFAULT, B_DEFAULT, {}
-    else:
-        k, b = random_spd(gen, 60.0), random_spd(gen, 6.0)
-        kwargs = {"stiffness": k, "damping": b}
+    k, b, kwargs = draw_gains(gen, gains, k_max=200.0)
     c = phri.ImpedanceController(jaco2, inertia=m_r, **kwargs)
     saturated, free = 0, 0
     for _ in range(200):
@@ -185,14 +186,7 @@ def test_eq5_matches_numpy_reference(jaco2, gen, inertia, gains):
 @pytest.mark.parametrize("gains", ["default", "diagonal", "full"])
 @pytest.mark.parametrize("dt", [1e-3, 1e-2])
 def test_torque_implicit_matches_numpy_reference(jaco2, gen, gains, dt, gravity):
-    if gains == "default":
-        k, b, kwargs = K_DEFAULT, B_DEFAULT, {}
-    elif gains == "diagonal":
-        k, b = gen.uniform(10, 300, 7), gen.uniform(1, 30, 7)
-        kwargs = {"stiffness": k, "damping": b}
-    else:
-        k, b = random_spd(gen, 60.0), random_spd(gen, 6.0)
-        kwargs = {"stiffness": k, "damping": b}
+    k, b, kwargs = draw_gains(gen, gains, k_max=300.0)
     c = phri.ImpedanceController(jaco2, gravity_compensation=gravity, **kwargs)
     saturated, free = 0, 0
     for _ in range(200):

@@ -362,8 +362,9 @@ impl Learner {
         Ok(())
     }
 
-    /// Replans over [0, T] from the original start, warm-started from the current plan, within the
-    /// per-tick budget, and switches to the result at `t`.
+    /// Replans over [0, T] from the original start, warm-started from the current plan (or the
+    /// nearest seed plan, if it costs less at the new weights), within the per-tick budget, and
+    /// switches to the result at `t`.
     fn replan(&mut self, t: f64) -> Result<TrajoptInfo> {
         let mut init = self.plan.waypoints();
         if let Some(seed) = self.seeds.nearest(&self.weights) {

@@ -27,6 +27,19 @@ pub struct PyTimedTrajectory {
     traj: TimedTrajectory,
 }
 
+type Sampler = fn(&TimedTrajectory, f64, &mut [f64], &mut [f64], &mut [f64]);
+
+impl PyTimedTrajectory {
+    /// (q, q̇, q̈) at `t` from `sample` (with or without the blend) as fresh arrays.
+    fn sampled<'py>(&self, py: Python<'py>, t: f64, sample: Sampler) -> PyResult<Triple<'py, PyArray1<f64>>> {
+        check_time("t", t)?;
+        let n = self.traj.dof();
+        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        sample(&self.traj, t, &mut q, &mut qd, &mut qdd);
+        Ok((PyArray1::from_vec(py, q), PyArray1::from_vec(py, qd), PyArray1::from_vec(py, qdd)))
+    }
+}
+
 #[pymethods]
 impl PyTimedTrajectory {
     #[new]
@@ -45,11 +58,7 @@ impl PyTimedTrajectory {
 
     /// (q [rad], q̇ [rad/s], q̈ [rad/s²]) at time `t` [s], each (n,).
     fn sample<'py>(&self, py: Python<'py>, t: f64) -> PyResult<Triple<'py, PyArray1<f64>>> {
-        check_time("t", t)?;
-        let n = self.traj.dof();
-        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-        self.traj.sample(t, &mut q, &mut qd, &mut qdd);
-        Ok((PyArray1::from_vec(py, q), PyArray1::from_vec(py, qd), PyArray1::from_vec(py, qdd)))
+        self.sampled(py, t, TimedTrajectory::sample)
     }
 
     /// `sample` at every time of `times` (T,) [s] in one call: three (T, n) arrays.
@@ -101,11 +110,7 @@ impl PyTimedTrajectory {
 
     /// The current plan alone at `t` [s], without the blend from a previous one: (q, q̇, q̈).
     fn sample_plan<'py>(&self, py: Python<'py>, t: f64) -> PyResult<Triple<'py, PyArray1<f64>>> {
-        check_time("t", t)?;
-        let n = self.traj.dof();
-        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-        self.traj.sample_plan(t, &mut q, &mut qd, &mut qdd);
-        Ok((PyArray1::from_vec(py, q), PyArray1::from_vec(py, qd), PyArray1::from_vec(py, qdd)))
+        self.sampled(py, t, TimedTrajectory::sample_plan)
     }
 
     /// Time [s] at which the blend into the current plan ends (0.0 when there is none).

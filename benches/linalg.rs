@@ -21,7 +21,7 @@ use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Mat, Side};
-use phri_core::block_tridiagonal::{BlockCholesky, BlockTridiagonal};
+use phri_core::block_tridiagonal::{BlockCholesky, BlockTridiagonal, Damping};
 use phri_core::deform::{DeformParams, Deformation};
 
 const NQ: usize = 7;
@@ -85,7 +85,7 @@ fn block_tridiagonal(c: &mut Criterion) {
         // phri, and the residual of its solution (computed densely, once).
         let mut chol = BlockCholesky::new(NQ, blocks);
         let mut x = rhs.clone();
-        assert!(chol.factor_from(&h, 0, 0.0, &fixed, 0));
+        assert!(chol.factor_from(&h, 0, Damping::identity(0.0), &fixed, 0));
         chol.solve(&mut x, 0);
         let dense = Mat::<f64>::from_fn(dim, dim, |r, c| h.get(r, c));
         let residual = (0..dim).map(|r| ((0..dim).map(|c| dense[(r, c)] * x[c]).sum::<f64>() - rhs[r]).abs()).fold(0.0, f64::max);
@@ -93,7 +93,7 @@ fn block_tridiagonal(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("phri_block_cholesky", waypoints), |b| {
             b.iter(|| {
                 let mut x = rhs.clone();
-                chol.factor_from(black_box(&h), 0, 0.0, &fixed, 0);
+                chol.factor_from(black_box(&h), 0, Damping::identity(0.0), &fixed, 0);
                 chol.solve(&mut x, 0);
                 x
             })

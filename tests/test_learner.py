@@ -501,7 +501,7 @@ def test_history_shapes_and_keys(robot, make):
     assert np.all(learner.interactions()[0]["weights"] <= 1.0)
 
 
-def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot):
+def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot, optimizer):
     capped, full = make(replan_iterations=2), make()
     assert not capped.replan_pending
     tau = push_torque(robot, capped, 4.0)
@@ -514,7 +514,12 @@ def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot):
         ticks += 1
         assert ticks < 300
         assert capped.observe(4.0 + 1e-3 * ticks, np.zeros(7)) == (False, False, True)
-    np.testing.assert_allclose(capped.plan, full.plan, rtol=0, atol=1e-5)
+    # Both converge to the same optimum, to the solver's relative cost tolerance (1e-9), which
+    # leaves the plans within ~1e-4 rad of each other (below the JACO2 encoders' resolution).
+    np.testing.assert_array_equal(capped.weights, full.weights)
+    capped_cost, full_cost = (optimizer.objective(x.plan, x.weights)[0] for x in (capped, full))
+    assert abs(capped_cost - full_cost) <= 1e-8 * abs(full_cost)
+    np.testing.assert_allclose(capped.plan, full.plan, rtol=0, atol=1e-4)
     assert len(capped.plans()) == ticks + 2
 
 

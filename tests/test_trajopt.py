@@ -169,13 +169,15 @@ def test_warm_starts(name, solved) -> None:
     same, again = opt.solve(problem.weights, problem.start, problem.goal, init=plan)
     assert again.converged and again.iterations <= 2, again
     assert again.cost <= info.cost + 1e-12
-    # After one update step of the task weight (0 → 0.3 × true): converges, no worse than cold.
+    # After one update step of the task weight (0 → 0.3 × true): converges to a local optimum (the
+    # problem is not convex: on the laptop task the cold start from the straight line ends in
+    # another one, of cost 0.2253 against 0.2479), so solving again from it gains nothing.
     w = problem.weights.copy()
     w[1:] *= 0.3
     warm, winfo = opt.solve(w, problem.start, problem.goal, init=plan0)
-    cold, cinfo = opt.solve(w, problem.start, problem.goal)
-    assert winfo.converged, winfo
-    assert winfo.cost <= cinfo.cost + 1e-6, (winfo, cinfo)
+    assert winfo.converged and winfo.coarse_iterations == 0, winfo
+    _, pinfo = opt.solve(w, problem.start, problem.goal, init=warm)
+    assert pinfo.cost >= winfo.cost - 1e-8 * abs(winfo.cost), (winfo, pinfo)
     np.testing.assert_array_equal(warm[0], problem.start)
 
 
@@ -239,3 +241,20 @@ def test_solve_releases_the_gil() -> None:
     assert elapsed > 0.3, f"the solve was too short to tell ({elapsed:.3f} s)"
     # Held, the thread would get at most a few switch intervals (5 ms each) of the solve.
     assert during > 0.2 * rate * elapsed, f"{during} counts in {elapsed:.2f} s at {rate:.0f}/s alone"
+
+
+def test_coarse_levels_are_configurable_and_reach_the_single_level_optimum() -> None:
+    problem = peers.study_problem("human")
+    multi = peers.phri_optimizer(problem)
+    assert multi.levels == [31, 11]
+    single = peers.phri_optimizer(problem, coarsening=0)
+    assert single.levels == [31]
+    assert peers.phri_optimizer(peers.study_problem("human", waypoints=100)).levels == [100, 34, 12]
+    plan, info = multi.solve(problem.weights, problem.start, problem.goal)
+    plan1, info1 = single.solve(problem.weights, problem.start, problem.goal)
+    assert info.coarse_iterations > 0 and info1.coarse_iterations == 0
+    assert info.iterations < info1.iterations, (info, info1)
+    assert abs(info.cost - info1.cost) <= 1e-8 * info1.cost, (info, info1)
+    np.testing.assert_allclose(plan, plan1, rtol=0, atol=1e-3)
+    with pytest.raises(ex.InvalidParameterError, match="coarsest"):
+        peers.phri_optimizer(problem, coarsest=2)

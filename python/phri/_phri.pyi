@@ -252,6 +252,8 @@ class TrajoptInfo:
     @property
     def iterations(self) -> int: ...
     @property
+    def coarse_iterations(self) -> int: ...
+    @property
     def evaluations(self) -> int: ...
     @property
     def cost(self) -> float: ...
@@ -280,16 +282,20 @@ class TrajectoryOptimizer:
         max_iterations: int = 500,
         max_time: float | None = None,
         gradient_tolerance: float = 1e-6,
-        relative_tolerance: float = 1e-10,
+        relative_tolerance: float = 1e-9,
         memory: int = 20,
         smoothing: float = 0.05,
         max_step: _Array | None = None,
         step_weight: float = 1e3,
         method: Literal["newton", "lbfgs"] = "newton",
         kinematic_curvature: bool = False,
+        coarsening: int = 3,
+        coarsest: int = 8,
     ) -> TrajectoryOptimizer: ...
     @property
     def waypoints(self) -> int: ...
+    @property
+    def levels(self) -> list[int]: ...
     @property
     def method(self) -> Literal["newton", "lbfgs"]: ...
     def objective(self, xi: _Array, weights: _Array) -> tuple[float, float, _F64]: ...

@@ -95,6 +95,22 @@ impl BlockTridiagonal {
     }
 }
 
+/// A damping added to a block-tridiagonal matrix before it is factored: `diagonal`·I +
+/// `difference`·T, with T = tridiag(−1, 2, −1) ⊗ I over the factored blocks (the second-difference
+/// metric of a trajectory, with its end points held).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Damping {
+    pub diagonal: f64,
+    pub difference: f64,
+}
+
+impl Damping {
+    /// `lambda`·I.
+    pub fn identity(lambda: f64) -> Self {
+        Damping { diagonal: lambda, difference: 0.0 }
+    }
+}
+
 /// The block size of the kernels below: a compile-time constant for the common arms (so loops
 /// unroll and bounds checks vanish), or a run-time one for any other robot.
 trait BlockSize: Copy {
@@ -150,16 +166,16 @@ impl BlockCholesky {
         }
     }
 
-    /// Factors H + λI over waypoints `first..first + blocks` of `h`, with the variables marked in
-    /// `fixed` (N × n) decoupled (identity rows). False if the matrix is not positive definite.
-    /// Blocks before `from` are kept from the previous factorisation (valid when nothing they
-    /// depend on changed: the diagonal blocks before `from`, the off-diagonal blocks before
-    /// `from`, λ and `fixed`).
-    pub fn factor_from(&mut self, h: &BlockTridiagonal, first: usize, lambda: f64, fixed: &[bool], from: usize) -> bool {
+    /// Factors H + `damping` over waypoints `first..first + blocks` of `h`, with the variables
+    /// marked in `fixed` (N × n) decoupled (identity rows). False if the matrix is not positive
+    /// definite. Blocks before `from` are kept from the previous factorisation (valid when nothing
+    /// they depend on changed: the diagonal blocks before `from`, the off-diagonal blocks before
+    /// `from`, the damping and `fixed`).
+    pub fn factor_from(&mut self, h: &BlockTridiagonal, first: usize, damping: Damping, fixed: &[bool], from: usize) -> bool {
         match self.n {
-            6 => self.factor_sized(Fixed::<6>, h, first, lambda, fixed, from),
-            7 => self.factor_sized(Fixed::<7>, h, first, lambda, fixed, from),
-            n => self.factor_sized(Dynamic(n), h, first, lambda, fixed, from),
+            6 => self.factor_sized(Fixed::<6>, h, first, damping, fixed, from),
+            7 => self.factor_sized(Fixed::<7>, h, first, damping, fixed, from),
+            n => self.factor_sized(Dynamic(n), h, first, damping, fixed, from),
         }
     }
 
@@ -178,7 +194,7 @@ impl BlockCholesky {
         size: S,
         h: &BlockTridiagonal,
         first: usize,
-        lambda: f64,
+        damping: Damping,
         fixed: &[bool],
         from: usize,
     ) -> bool {
@@ -187,14 +203,14 @@ impl BlockCholesky {
         for b in from.min(self.blocks)..self.blocks {
             let w = first + b;
             let fixed_w = &fixed[w * n..(w + 1) * n];
-            // L_b ← H_ww + λI − M_{b−1}·M_{b−1}ᵀ (lower triangle), fixed variables decoupled.
+            // L_b ← H_ww + D_ww − M_{b−1}·M_{b−1}ᵀ (lower triangle), fixed variables decoupled.
             let l = &mut self.l[b * nn..(b + 1) * nn];
             let hd = &h.diag[w * nn..(w + 1) * nn];
             for r in 0..n {
                 for c in 0..=r {
                     l[r * n + c] = hd[r * n + c];
                 }
-                l[r * n + r] += lambda;
+                l[r * n + r] += damping.diagonal + 2.0 * damping.difference;
             }
             if b > 0 {
                 let mp = &self.m[(b - 1) * nn..b * nn];
@@ -245,7 +261,13 @@ impl BlockCholesky {
                 let m = &mut self.m[b * nn..(b + 1) * nn];
                 for r in 0..n {
                     for i in 0..n {
-                        let mut s = if fixed_next[r] || fixed_w[i] { 0.0 } else { o[i * n + r] };
+                        let mut s = if fixed_next[r] || fixed_w[i] {
+                            0.0
+                        } else if i == r {
+                            o[i * n + r] - damping.difference
+                        } else {
+                            o[i * n + r]
+                        };
                         for k in 0..i {
                             s -= l[i * n + k] * m[r * n + k];
                         }
@@ -378,7 +400,7 @@ mod tests {
             let mut fixed = vec![false; waypoints * n];
             fixed[3 * n + 1] = true; // one variable held at a bound
             let mut chol = BlockCholesky::new(n, blocks);
-            assert!(chol.factor_from(&h, first, 0.5, &fixed, 0));
+            assert!(chol.factor_from(&h, first, Damping::identity(0.5), &fixed, 0));
             let mut x: Vec<f64> = (0..waypoints * n).map(|k| (k as f64 * 0.37).sin()).collect();
             let rhs = x.clone();
             chol.solve(&mut x, first);
@@ -408,10 +430,38 @@ mod tests {
             let mut h2 = h.clone();
             h2.diag[(7 * n) * n] += 1.0;
             let mut full = BlockCholesky::new(n, blocks);
-            assert!(full.factor_from(&h2, first, 0.5, &fixed, 0));
-            assert!(chol.factor_from(&h2, first, 0.5, &fixed, 7 - first));
+            assert!(full.factor_from(&h2, first, Damping::identity(0.5), &fixed, 0));
+            assert!(chol.factor_from(&h2, first, Damping::identity(0.5), &fixed, 7 - first));
             assert_eq!(full.l, chol.l);
             assert_eq!(full.m, chol.m);
+        }
+    }
+
+    #[test]
+    fn the_smoothness_damping_adds_the_second_difference_metric() {
+        let (n, waypoints, first) = (7, 9, 1);
+        let blocks = waypoints - 2;
+        let h = random_matrix(n, waypoints, 11);
+        let fixed = vec![false; waypoints * n];
+        let damping = Damping { diagonal: 0.25, difference: 3.0 };
+        let mut chol = BlockCholesky::new(n, blocks);
+        assert!(chol.factor_from(&h, first, damping, &fixed, 0));
+        let rhs: Vec<f64> = (0..waypoints * n).map(|k| (k as f64 * 0.61).cos()).collect();
+        let mut x = rhs.clone();
+        chol.solve(&mut x, first);
+        // Dense: H + 0.25·I + 3·tridiag(−1, 2, −1) ⊗ I over the factored blocks.
+        let mut a = dense(&h, first, blocks);
+        for k in 0..blocks * n {
+            a[(k, k)] += 0.25 + 6.0;
+            if k + n < blocks * n {
+                a[(k, k + n)] -= 3.0;
+                a[(k + n, k)] -= 3.0;
+            }
+        }
+        let b = nalgebra::DVector::from_column_slice(&rhs[first * n..(first + blocks) * n]);
+        let expect = a.lu().solve(&b).expect("non-singular");
+        for k in 0..blocks * n {
+            assert!((x[first * n + k] - expect[k]).abs() < 1e-12, "entry {k}: {} vs {}", x[first * n + k], expect[k]);
         }
     }
 
@@ -420,7 +470,7 @@ mod tests {
         let mut h = random_matrix(7, 6, 3);
         h.diag[(2 * 7 + 4) * 7 + 4] = -50.0;
         let mut chol = BlockCholesky::new(7, 4);
-        assert!(!chol.factor_from(&h, 1, 0.0, &[false; 42], 0));
-        assert!(chol.factor_from(&h, 1, 100.0, &[false; 42], 0));
+        assert!(!chol.factor_from(&h, 1, Damping::identity(0.0), &[false; 42], 0));
+        assert!(chol.factor_from(&h, 1, Damping::identity(100.0), &[false; 42], 0));
     }
 }

@@ -492,6 +492,14 @@ pub trait Feature: FeatureClone + Send + Sync {
     fn name(&self) -> &str;
     /// φ on this segment; if `grad` is given, adds the scaled gradient to it.
     fn segment(&self, seg: &mut Segment<'_>, grad: Option<SegmentGrad<'_>>) -> f64;
+    /// How the feature's total over a fixed path grows with the number of segments S the path is
+    /// cut into: Φ ∝ S^e. The default, 1, fits sums of a quantity at every waypoint or at points
+    /// along every segment; a sum of squared differences between consecutive waypoints (like
+    /// [`Efficiency`]) has −1. The optimiser's coarse levels weigh the feature by it (see
+    /// `trajopt`, multiresolution); a wrong value only makes their initial guess worse.
+    fn resolution_exponent(&self) -> i32 {
+        1
+    }
 }
 
 /// Path length in joint space: φ = ‖q_i − q_{i-1}‖² [rad²].
@@ -501,6 +509,9 @@ pub struct Efficiency;
 impl Feature for Efficiency {
     fn name(&self) -> &str {
         "efficiency"
+    }
+    fn resolution_exponent(&self) -> i32 {
+        -1
     }
     fn segment(&self, seg: &mut Segment<'_>, grad: Option<SegmentGrad<'_>>) -> f64 {
         let mut value = 0.0;
@@ -955,6 +966,11 @@ impl FeatureSet {
 
     pub fn len(&self) -> usize {
         self.features.len()
+    }
+
+    /// Each feature's [`Feature::resolution_exponent`].
+    pub fn resolution_exponents(&self) -> Vec<i32> {
+        self.features.iter().map(|f| f.resolution_exponent()).collect()
     }
 
     pub fn is_empty(&self) -> bool {

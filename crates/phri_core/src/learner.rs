@@ -8,7 +8,7 @@ use crate::error::{check_finite, PhriError, Result};
 use crate::features::FeatureSet;
 use crate::interaction::InteractionDetector;
 use crate::reference::{Interpolation, TimedTrajectory};
-use crate::trajopt::{TrajectoryOptimizer, TrajoptInfo};
+use crate::trajopt::{PlanLevels, TrajectoryOptimizer, TrajoptInfo};
 use crate::update::{relevance, UpdateInfo, UpdateRule, WeightUpdate};
 
 /// Timing and mode of the learner.
@@ -110,6 +110,10 @@ pub struct Learner {
     start: Vec<f64>,
     goal: Vec<f64>,
     plan: TimedTrajectory,
+    /// The plan with the optimiser's coarse plans it came from (the warm start of a replan), and
+    /// the replan's output.
+    levels: PlanLevels,
+    replanned: PlanLevels,
     /// Index k of the next sample instant k·sample_period.
     next_sample: f64,
     /// transition_speed × velocity limits [rad/s] (empty: switch at once).
@@ -120,7 +124,6 @@ pub struct Learner {
     seeds: Seeds,
     seed_grad: Vec<f64>,
     // Workspaces.
-    candidate: Vec<f64>,
     tracked: Vec<f64>,
     rates: Vec<f64>,
     deformed: Vec<f64>,
@@ -191,8 +194,9 @@ impl Learner {
         update.clip(&mut weights);
         let m = optimizer.waypoints();
         let full_cap = optimizer.params().max_iterations;
-        let mut plan0 = vec![0.0; m * n];
-        optimizer.solve(&mut features, &weights, start, goal, None, &mut plan0)?;
+        let mut levels = optimizer.plan_levels();
+        optimizer.solve_levels(&mut features, &weights, start, goal, None, &mut levels)?;
+        let plan0 = levels.plan().to_vec();
         let seeds = Seeds::plan(params.seeds, &update, &weights, &mut features, &mut optimizer, start, goal)?;
         if params.replan_iterations > 0 {
             // The initial plan converged above; replans keep to the per-tick budget.
@@ -211,12 +215,13 @@ impl Learner {
             start: start.to_vec(),
             goal: goal.to_vec(),
             plan,
+            replanned: levels.clone(),
+            levels,
             next_sample: 0.0,
             speed_limits,
             replan_pending: false,
             seeds,
             seed_grad: vec![0.0; m * n],
-            candidate: vec![0.0; m * n],
             tracked: vec![0.0; m * n],
             rates: vec![0.0; 2 * n],
             deformed: vec![0.0; m * n],
@@ -362,24 +367,31 @@ impl Learner {
         Ok(())
     }
 
-    /// Replans over [0, T] from the original start, warm-started from the current plan (or the
-    /// nearest seed plan, if it costs less at the new weights), within the per-tick budget, and
-    /// switches to the result at `t`.
+    /// Replans over [0, T] from the original start, warm-started from the current plan and its
+    /// coarse plans (or the nearest seed's, if its plan costs less at the new weights), within the
+    /// per-tick budget, and switches to the result at `t`.
     fn replan(&mut self, t: f64) -> Result<TrajoptInfo> {
-        let mut init = self.plan.waypoints();
+        let mut init = &self.levels;
         if let Some(seed) = self.seeds.nearest(&self.weights) {
             let seed = &self.seeds.plans[seed];
-            let (here, _) = self.optimizer.objective(&mut self.features, &self.weights, init, &mut self.seed_grad)?;
-            let (there, _) = self.optimizer.objective(&mut self.features, &self.weights, seed, &mut self.seed_grad)?;
+            let (here, _) = self.optimizer.objective(&mut self.features, &self.weights, init.plan(), &mut self.seed_grad)?;
+            let (there, _) = self.optimizer.objective(&mut self.features, &self.weights, seed.plan(), &mut self.seed_grad)?;
             if there < here {
                 init = seed;
             }
         }
-        let info =
-            self.optimizer.solve(&mut self.features, &self.weights, &self.start, &self.goal, Some(init), &mut self.candidate)?;
-        self.plan.switch_to(&self.candidate, t, &self.speed_limits)?;
+        let info = self.optimizer.solve_levels(
+            &mut self.features,
+            &self.weights,
+            &self.start,
+            &self.goal,
+            Some(init),
+            &mut self.replanned,
+        )?;
+        std::mem::swap(&mut self.levels, &mut self.replanned);
+        self.plan.switch_to(self.levels.plan(), t, &self.speed_limits)?;
         self.replan_pending = self.params.replan_iterations > 0 && !info.converged;
-        self.history.plans.push((t, self.candidate.clone()));
+        self.history.plans.push((t, self.levels.plan().to_vec()));
         Ok(info)
     }
 
@@ -407,7 +419,7 @@ impl Learner {
 #[derive(Default)]
 struct Seeds {
     weights: Vec<Vec<f64>>,
-    plans: Vec<Vec<f64>>,
+    plans: Vec<PlanLevels>,
     /// 1 / (upper − lower) of each learned weight, 0 for the others: distances in bound units.
     scale: Vec<f64>,
 }
@@ -454,7 +466,6 @@ impl Seeds {
             let span = p.upper[k] - p.lower[k];
             seeds.scale[k] = if span > 0.0 { 1.0 / span } else { 0.0 };
         }
-        let n_plan = optimizer.waypoints() * features.model().nq();
         for index in 0..count as usize {
             let mut w = weights.to_vec();
             let mut rest = index;
@@ -463,8 +474,8 @@ impl Seeds {
                 rest /= per_weight;
                 w[k] = p.lower[k] + (p.upper[k] - p.lower[k]) * i as f64 / (per_weight - 1) as f64;
             }
-            let mut plan = vec![0.0; n_plan];
-            optimizer.solve(features, &w, start, goal, None, &mut plan)?;
+            let mut plan = optimizer.plan_levels();
+            optimizer.solve_levels(features, &w, start, goal, None, &mut plan)?;
             seeds.weights.push(w);
             seeds.plans.push(plan);
         }

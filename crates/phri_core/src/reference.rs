@@ -173,23 +173,83 @@ impl TimedTrajectory {
         let mut length = needed.max(1e-3);
         for _ in 0..60 {
             self.blend.length = length;
-            let mut ok = true;
-            for k in 1..=BLEND_CHECKS {
-                let tk = t + length * k as f64 / (BLEND_CHECKS + 1) as f64;
-                self.sample_plan(tk, &mut sc.q, &mut sc.v, &mut sc.a);
-                sc.q_old.copy_from_slice(&sc.q);
-                sc.v_old.copy_from_slice(&sc.v);
-                self.blend.add(tk, &mut sc.q_old, &mut sc.v_old, &mut sc.a);
-                ok = (0..self.n).all(|j| sc.v_old[j].abs() <= limits[j].max(sc.v[j].abs()) * (1.0 + 1e-9));
-                if !ok {
-                    break;
-                }
-            }
-            if ok {
+            if self.blend_keeps_to(limits, sc) {
                 break;
             }
             length *= 1.25;
         }
+    }
+
+    /// Whether the blended reference keeps to `limits` (or to the plan's own speed) over the
+    /// blend. Within one segment of the plan the reference's velocity is a quadratic in t (the
+    /// plan's, linear or cubic, plus the blend's cubic offset), so beside evenly spaced points it
+    /// is checked where it can peak: at both ends of every segment (one-sided: a piecewise-linear
+    /// plan's velocity jumps at its waypoints) and at each joint's vertex of the quadratic.
+    fn blend_keeps_to(&self, limits: &[f64], sc: &mut Scratch) -> bool {
+        let (start, end) = (self.blend.start, self.blend.start + self.blend.length);
+        for k in 1..=BLEND_CHECKS {
+            let tk = start + self.blend.length * k as f64 / (BLEND_CHECKS + 1) as f64;
+            if !self.blend_keeps_to_at(None, tk, None, limits, sc) {
+                return false;
+            }
+        }
+        let dt = self.dt();
+        let first = self.segment_at(start);
+        let last = self.segment_at(end);
+        for i in first..=last {
+            let a = (i as f64 * dt).max(start);
+            let b = ((i + 1) as f64 * dt).min(end).min(self.duration);
+            if !(b > a) {
+                continue;
+            }
+            let mid = 0.5 * (a + b);
+            for tk in [a, b] {
+                if !self.blend_keeps_to_at(Some(i), tk, None, limits, sc) {
+                    return false;
+                }
+            }
+            // The vertex of each joint's velocity v(τ) = c0 + c1·τ + c2·τ², τ = (t − mid)/(b − a),
+            // from its values at τ = −½, 0, ½.
+            for j in 0..self.n {
+                let v = |tk: f64, sc: &mut Scratch| {
+                    self.sample_plan_in(i, tk, &mut sc.q, &mut sc.v, &mut sc.a);
+                    self.blend.add(tk, &mut sc.q, &mut sc.v, &mut sc.a);
+                    sc.v[j]
+                };
+                let (va, vm, vb) = (v(a, sc), v(mid, sc), v(b, sc));
+                let c2 = 2.0 * (va + vb - 2.0 * vm);
+                let c1 = vb - va;
+                if c2 != 0.0 {
+                    let tau = -c1 / (2.0 * c2);
+                    if tau.abs() < 0.5 && !self.blend_keeps_to_at(Some(i), mid + tau * (b - a), Some(j), limits, sc) {
+                        return false;
+                    }
+                }
+            }
+        }
+        true
+    }
+
+    /// The check of [`TimedTrajectory::blend_keeps_to`] at time `t`, on the plan's segment
+    /// `segment` (or wherever t falls), for joint `only` (or every joint).
+    fn blend_keeps_to_at(&self, segment: Option<usize>, t: f64, only: Option<usize>, limits: &[f64], sc: &mut Scratch) -> bool {
+        match segment {
+            Some(i) => self.sample_plan_in(i, t, &mut sc.q, &mut sc.v, &mut sc.a),
+            None => self.sample_plan(t, &mut sc.q, &mut sc.v, &mut sc.a),
+        }
+        sc.q_old.copy_from_slice(&sc.q);
+        sc.v_old.copy_from_slice(&sc.v);
+        self.blend.add(t, &mut sc.q_old, &mut sc.v_old, &mut sc.a);
+        let ok = |j: usize| sc.v_old[j].abs() <= limits[j].max(sc.v[j].abs()) * (1.0 + 1e-9);
+        match only {
+            Some(j) => ok(j),
+            None => (0..self.n).all(ok),
+        }
+    }
+
+    /// The plan's segment (between waypoints i and i + 1) that holds time `t` [s].
+    fn segment_at(&self, t: f64) -> usize {
+        (((t / self.dt()).max(0.0)) as usize).min(self.len() - 2)
     }
 
     fn update_tangents(&mut self) {
@@ -273,7 +333,14 @@ impl TimedTrajectory {
             qdd.fill(0.0);
             return;
         }
-        let i = ((t / dt) as usize).min(m - 2);
+        self.sample_plan_in(((t / dt) as usize).min(m - 2), t, q, qd, qdd);
+    }
+
+    /// The plan's interpolation on segment `i` (waypoints i and i + 1) at time `t` [s], clamped to
+    /// the segment.
+    fn sample_plan_in(&self, i: usize, t: f64, q: &mut [f64], qd: &mut [f64], qdd: &mut [f64]) {
+        let n = self.n;
+        let dt = self.dt();
         let s = (t / dt - i as f64).clamp(0.0, 1.0);
         let (a, b) = (&self.waypoints[i * n..(i + 1) * n], &self.waypoints[(i + 1) * n..(i + 2) * n]);
         match self.interpolation {

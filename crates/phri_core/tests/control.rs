@@ -231,8 +231,11 @@ proptest! {
             traj.sample(t - h, &mut q1, &mut v, &mut acc);
             traj.sample(t + h, &mut q2, &mut v, &mut acc);
             let on_knot = !cubic && ((t / 0.5).fract() < 1e-4 || (t / 0.5).fract() > 1.0 - 1e-4);
+            // The reference is C¹: its acceleration jumps where the blend ends, which the central
+            // difference sees within h of it (a short blend's jump is large).
+            let at_blend_end = (t - (t0 + length)).abs() < 2.0 * h;
             for j in 0..n {
-                prop_assert!(on_knot || ((q2[j] - q1[j]) / (2.0 * h) - vb[j]).abs() < 1e-4, "velocity at t={}", t);
+                prop_assert!(on_knot || at_blend_end || ((q2[j] - q1[j]) / (2.0 * h) - vb[j]).abs() < 1e-4, "velocity at t={}", t);
             }
         }
         // After the blend the reference is the new plan.

@@ -11,12 +11,14 @@ use crate::arrays::{matrix, vector, ArrayIn};
 use crate::errors::{error, IntoPy, Kind};
 use crate::features::PyFeatures;
 
-/// What a solve did: iterations, cost evaluations, final cost and penalty, the largest clearance
-/// violation [m], whether a tolerance was met, and the wall time [s].
+/// What a solve did: iterations on the plan's waypoints and on the coarse levels, cost evaluations,
+/// final cost and penalty, the largest clearance violation [m], whether a tolerance was met, and
+/// the wall time [s].
 #[pyclass(name = "TrajoptInfo", module = "phri._phri", frozen, get_all)]
 #[derive(Clone)]
 pub struct PyTrajoptInfo {
     pub iterations: usize,
+    pub coarse_iterations: usize,
     pub evaluations: usize,
     pub cost: f64,
     pub penalty: f64,
@@ -30,6 +32,7 @@ impl From<TrajoptInfo> for PyTrajoptInfo {
     fn from(i: TrajoptInfo) -> Self {
         PyTrajoptInfo {
             iterations: i.iterations,
+            coarse_iterations: i.coarse_iterations,
             evaluations: i.evaluations,
             cost: i.cost,
             penalty: i.penalty,
@@ -45,8 +48,8 @@ impl From<TrajoptInfo> for PyTrajoptInfo {
 impl PyTrajoptInfo {
     fn __repr__(&self) -> String {
         format!(
-            "TrajoptInfo(iterations={}, evaluations={}, cost={:.6}, penalty={:.3e}, max_violation={:.3e}, max_step_excess={:.3e}, converged={}, seconds={:.3e})",
-            self.iterations, self.evaluations, self.cost, self.penalty, self.max_violation, self.max_step_excess, self.converged, self.seconds
+            "TrajoptInfo(iterations={}, coarse_iterations={}, evaluations={}, cost={:.6}, penalty={:.3e}, max_violation={:.3e}, max_step_excess={:.3e}, converged={}, seconds={:.3e})",
+            self.iterations, self.coarse_iterations, self.evaluations, self.cost, self.penalty, self.max_violation, self.max_step_excess, self.converged, self.seconds
         )
     }
 }
@@ -59,6 +62,9 @@ impl PyTrajoptInfo {
 /// projected L-BFGS; `memory` applies to it only). `kinematic_curvature` makes the Newton model
 /// include the second derivatives of the kinematics of the table, coffee and origin features and
 /// the clearance (default False: their Gauss–Newton part, measured to converge in fewer steps).
+/// `coarsening` (default 3; 0 or 1 for none) solves first on coarser copies of the problem with
+/// about 1/`coarsening` of the segments each, down to `coarsest` waypoints (multiresolution: a
+/// cold plan starts from the coarse plan; see `phri_core::trajopt`).
 #[pyclass(name = "TrajectoryOptimizer", module = "phri._phri")]
 pub struct PyTrajectoryOptimizer {
     pub(crate) optimizer: TrajectoryOptimizer,
@@ -70,8 +76,9 @@ impl PyTrajectoryOptimizer {
     #[new]
     #[pyo3(signature = (
         features, waypoints = 31, *, clearance = None, clearance_weight = 1e3, max_iterations = 500,
-        max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-10, memory = 20, smoothing = 0.05,
-        max_step = None, step_weight = 1e3, method = "newton", kinematic_curvature = false
+        max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-9, memory = 20, smoothing = 0.05,
+        max_step = None, step_weight = 1e3, method = "newton", kinematic_curvature = false, coarsening = 3,
+        coarsest = 8
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -89,6 +96,8 @@ impl PyTrajectoryOptimizer {
         step_weight: f64,
         method: &str,
         kinematic_curvature: bool,
+        coarsening: usize,
+        coarsest: usize,
     ) -> PyResult<Self> {
         let set = features.set.clone();
         let model = set.model().clone();
@@ -125,6 +134,8 @@ impl PyTrajectoryOptimizer {
             step_weight,
             method,
             kinematic_curvature,
+            coarsening,
+            coarsest,
         };
         let optimizer = TrajectoryOptimizer::new(&set, waypoints, params).py_err()?;
         Ok(PyTrajectoryOptimizer { optimizer, features: set })
@@ -134,6 +145,13 @@ impl PyTrajectoryOptimizer {
     #[getter]
     fn waypoints(&self) -> usize {
         self.optimizer.waypoints()
+    }
+
+    /// Waypoints of each level, this optimiser's first, then its coarse levels'.
+    #[getter]
+    fn levels(&self) -> Vec<usize> {
+        let levels = self.optimizer.plan_levels();
+        (0..levels.len()).map(|k| levels.level(k).len() / self.features.model().nq()).collect()
     }
 
     /// The algorithm: "newton" or "lbfgs".

@@ -3,8 +3,9 @@
 //! point and link_7 clearance, max_step from the velocity limits; see `phri_benches::study_planner`).
 //!
 //! Targets (issue 4), median and p99:
-//! - warm replan after one correction, N = 31: ≤ 1 ms — from the converged plan for task weight 0,
-//!   replan for the weight one update step later (0 → 0.3 × the true weight), warm-started;
+//! - warm replan after one correction, N = 31: ≤ 1 ms — from the converged plan for task weight 0
+//!   (with its coarse plans, `solve_levels`, as the learner replans), replan for the weight one
+//!   update step later (0 → 0.3 × the true weight);
 //! - `Learner::observe` with an interaction (deform + update + warm replan), N = 31: ≤ 1 ms;
 //! - cold replan from the straight line for the true weights, N = 31: ≤ 5 ms;
 //! - the same for N = 100: ≤ 4 × the N = 31 time.
@@ -13,8 +14,10 @@
 //! the machine, so after the criterion groups this binary times individual calls with `Instant` over
 //! *varied* problems and prints median, p99 and max per case: cold solves repeated per task and N;
 //! warm replans from the converged plans for task weights {0, 0.2, 0.5} × true to that weight plus
-//! {0.1, 0.3} × true; and every observe of 1 s pushes (10 samples at 10 Hz, each an update and a
-//! replan) starting at t = 2, 4, 6, 8 s on fresh learners.
+//! {0.1, 0.3} × true and to the true weight (the learner's first push on the keep-out tasks jumps
+//! straight to it), through the coarse levels and, for comparison, from the plan alone; and every
+//! observe of 1 s pushes (10 samples at 10 Hz, each an update and a replan) starting at
+//! t = 2, 4, 6, 8 s on fresh learners.
 //!
 //! The observe rows repeat the pushes with seed plans (`LearnerParams::seeds` = 5) and with a
 //! per-call budget (`LearnerParams::replan_iterations` = 8): every call that does work (the pushes,
@@ -31,7 +34,7 @@ use criterion::{criterion_group, BatchSize, BenchmarkId, Criterion, Throughput};
 use phri_benches::{corrective_push, jaco2, study_learner, study_planner, study_tasks, StudyTask};
 use phri_core::features::FeatureSet;
 use phri_core::learner::LearnerParams;
-use phri_core::trajopt::{TrajectoryOptimizer, TrajoptInfo};
+use phri_core::trajopt::{PlanLevels, TrajectoryOptimizer, TrajoptInfo};
 use phri_core::RobotModel;
 
 const NQ: usize = 7;
@@ -47,6 +50,18 @@ fn solve(
     out: &mut [f64],
 ) -> TrajoptInfo {
     opt.solve(fs, &[1.0, w], &task.start, &task.goal, init, out).expect("valid problem")
+}
+
+/// The same through the coarse levels (`solve_levels`), from `init` (None: cold).
+fn solve_levels(
+    fs: &mut FeatureSet,
+    opt: &mut TrajectoryOptimizer,
+    task: &StudyTask,
+    w: f64,
+    init: Option<&PlanLevels>,
+    out: &mut PlanLevels,
+) -> TrajoptInfo {
+    opt.solve_levels(fs, &[1.0, w], &task.start, &task.goal, init, out).expect("valid problem")
 }
 
 fn cold(c: &mut Criterion) {
@@ -75,14 +90,15 @@ fn warm(c: &mut Criterion) {
     group.throughput(Throughput::Elements(n as u64));
     for task in study_tasks() {
         let (mut fs, mut opt) = study_planner(&model, &task, n);
-        let mut converged = vec![0.0; n * NQ];
-        solve(&mut fs, &mut opt, &task, 0.0, None, &mut converged);
-        let mut plan = vec![0.0; n * NQ];
+        let mut converged = opt.plan_levels();
+        solve_levels(&mut fs, &mut opt, &task, 0.0, None, &mut converged);
+        let mut plan = opt.plan_levels();
         let w = ONE_STEP * task.true_weight;
-        let info = solve(&mut fs, &mut opt, &task, w, Some(&converged), &mut plan);
+        let info = solve_levels(&mut fs, &mut opt, &task, w, Some(&converged), &mut plan);
         eprintln!("warm {:>6} 0 -> {w}: {info:?}", task.name);
-        group
-            .bench_function(task.name, |b| b.iter(|| solve(&mut fs, &mut opt, &task, black_box(w), Some(&converged), &mut plan)));
+        group.bench_function(task.name, |b| {
+            b.iter(|| solve_levels(&mut fs, &mut opt, &task, black_box(w), Some(&converged), &mut plan))
+        });
     }
     group.finish();
 }
@@ -149,38 +165,48 @@ fn tails(reps: usize) {
                 cold31.extend_from_slice(&samples);
             }
             let info = info.expect("solved");
-            let extra = format!("{} iterations, {} evaluations", info.iterations, info.evaluations);
+            let extra = format!("{} + {} coarse iterations", info.iterations, info.coarse_iterations);
             row(&format!("cold {} N={n}", task.name), &mut samples, &extra);
         }
     }
     row("cold all tasks N=31", &mut cold31, "");
     let n = 31;
-    let mut warm_all = Vec::new();
-    for task in study_tasks() {
-        let (mut fs, mut opt) = study_planner(&model, &task, n);
-        let mut samples = Vec::new();
-        let (mut iterations, mut worst) = (0, 0);
-        for from in [0.0, 0.2, 0.5] {
-            let w0 = from * task.true_weight;
-            let mut converged = vec![0.0; n * NQ];
-            solve(&mut fs, &mut opt, &task, w0, None, &mut converged);
-            for step in [0.1, ONE_STEP] {
-                let w = w0 + step * task.true_weight;
-                let mut plan = vec![0.0; n * NQ];
-                for _ in 0..reps.max(1) * 10 {
-                    let t0 = Instant::now();
-                    let info = solve(&mut fs, &mut opt, &task, w, Some(&converged), &mut plan);
-                    samples.push(t0.elapsed());
-                    iterations += info.iterations;
-                    worst = worst.max(info.iterations);
+    for through_levels in [true, false] {
+        let label = if through_levels { "warm" } else { "warm, plan only" };
+        let mut warm_all = Vec::new();
+        for task in study_tasks() {
+            let (mut fs, mut opt) = study_planner(&model, &task, n);
+            let mut samples = Vec::new();
+            let (mut iterations, mut coarse, mut worst) = (0, 0, 0);
+            for from in [0.0, 0.2, 0.5] {
+                let w0 = from * task.true_weight;
+                let mut converged = opt.plan_levels();
+                solve_levels(&mut fs, &mut opt, &task, w0, None, &mut converged);
+                for w in [w0 + 0.1 * task.true_weight, w0 + ONE_STEP * task.true_weight, task.true_weight] {
+                    let mut out = opt.plan_levels();
+                    let mut plan = vec![0.0; n * NQ];
+                    for _ in 0..reps.max(1) * 10 {
+                        let t0 = Instant::now();
+                        let info = if through_levels {
+                            solve_levels(&mut fs, &mut opt, &task, w, Some(&converged), &mut out)
+                        } else {
+                            solve(&mut fs, &mut opt, &task, w, Some(converged.plan()), &mut plan)
+                        };
+                        samples.push(t0.elapsed());
+                        iterations += info.iterations;
+                        coarse += info.coarse_iterations;
+                        worst = worst.max(info.iterations);
+                    }
                 }
             }
+            let calls = samples.len() as f64;
+            let extra =
+                format!("mean {:.1} + {:.1} coarse iterations, worst {worst}", iterations as f64 / calls, coarse as f64 / calls);
+            row(&format!("{label} {}", task.name), &mut samples, &extra);
+            warm_all.extend_from_slice(&samples);
         }
-        let extra = format!("mean {:.1} iterations, worst {worst}", iterations as f64 / samples.len() as f64);
-        row(&format!("warm {}", task.name), &mut samples, &extra);
-        warm_all.extend_from_slice(&samples);
+        row(&format!("{label} all tasks"), &mut warm_all, "");
     }
-    row("warm all tasks", &mut warm_all, "");
     let variants = [
         ("", LearnerParams::default()),
         (" seeds 5", LearnerParams { seeds: SEEDS, ..Default::default() }),

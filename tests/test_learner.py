@@ -530,6 +530,6 @@ def test_seed_plans_shorten_the_replan_after_a_push(make, robot):
     plain.observe(4.0, tau)
     a, b = seeded.interactions()[0]["replan"], plain.interactions()[0]["replan"]
     assert a.converged and b.converged
-    assert a.iterations < b.iterations and a.cost <= b.cost + 1e-9
+    assert a.iterations < b.iterations and a.cost <= b.cost + 1e-9 * abs(b.cost)  # the solver's tolerance
     with pytest.raises(ex.InvalidParameterError, match="^seeds must be 0 .none. or at least 2"):
         make(seeds=1)

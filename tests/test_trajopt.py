@@ -258,3 +258,17 @@ def test_coarse_levels_are_configurable_and_reach_the_single_level_optimum() -> 
     np.testing.assert_allclose(plan, plan1, rtol=0, atol=1e-3)
     with pytest.raises(ex.InvalidParameterError, match="coarsest"):
         peers.phri_optimizer(problem, coarsest=2)
+
+
+@pytest.mark.parametrize("name", TASKS)
+def test_every_kinematic_curvature_mode_reaches_the_optimum(name, solved) -> None:
+    problem, _, _, info, *_ = solved[name]
+    for mode in ("gauss-newton", "exact"):
+        _, other = peers.phri_optimizer(problem, kinematic_curvature=mode).solve(
+            problem.weights, problem.start, problem.goal
+        )
+        assert other.converged, (mode, other)
+        if name != "laptop":  # two optima close together: a mode may end in either
+            assert abs(other.cost - info.cost) <= 1e-7 * abs(info.cost), (mode, other, info)
+    with pytest.raises(ex.InvalidParameterError, match="kinematic_curvature"):
+        peers.phri_optimizer(problem, kinematic_curvature="yes")

@@ -288,7 +288,7 @@ class TrajectoryOptimizer:
         max_step: _Array | None = None,
         step_weight: float = 1e3,
         method: Literal["newton", "lbfgs"] = "newton",
-        kinematic_curvature: bool = False,
+        kinematic_curvature: Literal["gauss-newton", "settled", "exact"] = "settled",
         coarsening: int = 3,
         coarsest: int = 8,
     ) -> TrajectoryOptimizer: ...

@@ -137,10 +137,11 @@ impl SegmentHessian {
 
     /// Whether the caller wants the terms with second derivatives of the kinematics (∂²p/∂q²,
     /// ∂²R/∂q²) of features that act at every waypoint (table, coffee, origin). True for the exact
-    /// Hessian ([`FeatureSet::weighted_cost_curvature`]); the optimiser asks without them by
-    /// default (`TrajoptParams::kinematic_curvature`): they make its model indefinite along the
-    /// whole path and force heavy damping, while their Gauss–Newton part models these features
-    /// well. Keep-out features keep them near their kink, where they decide the final convergence.
+    /// Hessian ([`FeatureSet::weighted_cost_curvature`]); the optimiser asks without them until
+    /// its active set settles (`TrajoptParams::kinematic_curvature`): far from the optimum they
+    /// make its model indefinite along the whole path and force heavy damping, while their
+    /// Gauss–Newton part models these features well. Keep-out features keep them near their kink,
+    /// where they decide the final convergence.
     pub fn kinematic(&self) -> bool {
         self.kinematic
     }

@@ -94,6 +94,26 @@ pub enum TrajoptMethod {
     Lbfgs,
 }
 
+/// The Newton model's share of the kinematics' second derivatives (see
+/// `TrajoptParams::kinematic_curvature`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum KinematicCurvature {
+    /// Leave them out: the Gauss–Newton part only. Far from the optimum it models these features
+    /// better than the exact Hessian, which is indefinite along much of the path and forces heavy
+    /// damping (measured: table 29 → 20 iterations at N = 31 against `Exact`, coffee 18 → 9 at
+    /// N = 100); near it, convergence is only linear where they matter (table: the clearance
+    /// holds the hand down and the table feature's curvature decides the rest).
+    GaussNewton,
+    /// Gauss–Newton until the model's pieces agree with its step (the active set has settled) and
+    /// it predicts little more decrease, exact from then on, for a quadratic end (measured on the
+    /// study's tasks from the levels' warm starts: coffee 4 → 2–3 fine iterations, table 9–14 →
+    /// 4–10; see [`SETTLED_DECREASE`]).
+    #[default]
+    Settled,
+    /// Include them from the start.
+    Exact,
+}
+
 /// Tuning of the optimiser; `Default` gives the documented defaults.
 ///
 /// With `max_time` unset every solve is deterministic: the same inputs give bit-identical plans.
@@ -121,12 +141,10 @@ pub struct TrajoptParams {
     pub step_weight: f64,
     /// The algorithm (default [`TrajoptMethod::Newton`]).
     pub method: TrajoptMethod,
-    /// Newton: model the second derivatives of the kinematics in the features that act at every
-    /// waypoint (table, coffee, origin) and in the clearance penalty (default false: their
-    /// Gauss–Newton part; measured on the study's tasks, table 29 → 20 iterations at N = 31 and
-    /// 60 → 38 at N = 100, coffee 18 → 9 at N = 100, the keep-out tasks unchanged, the same
-    /// optima). See `features::SegmentHessian::kinematic`.
-    pub kinematic_curvature: bool,
+    /// Newton: how the model treats the second derivatives of the kinematics in the features that
+    /// act at every waypoint (table, coffee, origin) and in the clearance penalty (default
+    /// [`KinematicCurvature::Settled`]). See `features::SegmentHessian::kinematic`.
+    pub kinematic_curvature: KinematicCurvature,
     /// Multiresolution (see the module docs): every solve first corrects its initial trajectory
     /// on a coarser copy of the problem with about 1/`coarsening` of the segments, recursively;
     /// 0 or 1 solves on the given waypoints only. Default 3.
@@ -148,7 +166,7 @@ impl Default for TrajoptParams {
             max_step: Vec::new(),
             step_weight: 1e3,
             method: TrajoptMethod::Newton,
-            kinematic_curvature: false,
+            kinematic_curvature: KinematicCurvature::Settled,
             coarsening: 3,
             coarsest: 8,
         }
@@ -197,12 +215,18 @@ fn damping(lambda: f64) -> Damping {
     Damping { diagonal: lambda, difference: DAMPING_METRIC * lambda }
 }
 
+/// [`KinematicCurvature::Settled`] switches to the exact curvature once a step's pieces agree with
+/// it and it predicts a decrease below this fraction of the cost (measured on the study's tasks:
+/// 10⁻³ takes 11% fewer instructions than Gauss–Newton throughout, ∞ — at the first consistent
+/// step — 6%, 10⁻⁴ 10%).
+const SETTLED_DECREASE: f64 = 1e-3;
+
 /// Line-search trials per Newton step at most (α shrinks at least tenfold every two).
 const MAX_BACKTRACKS: usize = 12;
 
 /// How much of the cost an evaluation computes.
 #[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-enum Level {
+enum Derivatives {
     Gradient,
     Hessian,
 }
@@ -212,6 +236,10 @@ enum Level {
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlanLevels {
     levels: Vec<Vec<f64>>,
+    /// Where each level's solver left off, and the weights it solved for: a solve for the same
+    /// weights goes on from there (a replan cut short by an iteration cap).
+    states: Vec<SolverState>,
+    weights: Vec<f64>,
     dof: usize,
 }
 
@@ -236,8 +264,9 @@ impl PlanLevels {
         &self.levels[k]
     }
 
-    /// Level `k`, to write (e.g. plans stored earlier).
+    /// Level `k`, to write (e.g. plans stored earlier); the solvers' states are forgotten.
     pub fn level_mut(&mut self, k: usize) -> &mut [f64] {
+        self.weights.clear();
         &mut self.levels[k]
     }
 }
@@ -289,6 +318,12 @@ pub struct TrajectoryOptimizer {
     hz: Vec<f64>,
     /// The next coarser level, if multiresolution builds one.
     coarse: Option<Box<Coarse>>,
+    /// The Newton model includes the kinematics' second derivatives now (see
+    /// [`KinematicCurvature`]).
+    exact_curvature: bool,
+    /// The solver state the next Newton solve resumes from (set per solve), and the last one's.
+    resume: Option<SolverState>,
+    state: SolverState,
 }
 
 impl TrajectoryOptimizer {
@@ -340,6 +375,9 @@ impl TrajectoryOptimizer {
         let coarse = Coarse::build(features, waypoints, &params)?;
         Ok(TrajectoryOptimizer {
             coarse,
+            exact_curvature: false,
+            resume: None,
+            state: SolverState::default(),
             lower: model.lower_limits(),
             upper: model.upper_limits(),
             data: model.data(),
@@ -431,21 +469,21 @@ impl TrajectoryOptimizer {
         }
         check_finite("trajectory", trajectory)?;
         self.trial.copy_from_slice(trajectory);
-        let result = self.evaluate(features, weights, Buffer::Trial, Level::Gradient);
+        let result = self.evaluate(features, weights, Buffer::Trial, Derivatives::Gradient);
         grad.copy_from_slice(&self.trial_grad);
         Ok(result)
     }
 
     /// Cost (and derivatives, per `level`) of a buffer; the gradient covers all N × n entries.
-    /// With `Level::Hessian` the buffer's [`Model`] receives the smooth part's Hessian, the
+    /// With `Derivatives::Hessian` the buffer's [`Model`] receives the smooth part's Hessian, the
     /// penalties' gradient, and every clearance's linearisation (active or not).
-    fn evaluate(&mut self, features: &mut FeatureSet, weights: &[f64], which: Buffer, level: Level) -> (f64, f64) {
+    fn evaluate(&mut self, features: &mut FeatureSet, weights: &[f64], which: Buffer, level: Derivatives) -> (f64, f64) {
         let (traj, grad, model) = match which {
             Buffer::Current => (&self.traj, &mut self.grad, &mut self.model),
             Buffer::Trial => (&self.trial, &mut self.trial_grad, &mut self.trial_model),
         };
-        let with_hessian = level == Level::Hessian;
-        features.set_kinematic_curvature(self.params.kinematic_curvature);
+        let with_hessian = level == Derivatives::Hessian;
+        features.set_kinematic_curvature(self.exact_curvature);
         let mut cost = features.weighted_cost_unchecked(
             traj,
             self.waypoints,
@@ -485,7 +523,7 @@ impl TrajectoryOptimizer {
                                 model.pen_grad[i * n + j] += g;
                             }
                         }
-                        if with_hessian && self.params.kinematic_curvature {
+                        if with_hessian && self.exact_curvature {
                             // The curvature part of ∂²(ρ·gap²) = 2ρ·∇z·∇zᵀ − 2ρ·gap·∂²z; the
                             // Gauss–Newton part enters the Newton model with the active set.
                             position_hessian(&self.jacobian, &nalgebra::Vector3::z(), &mut self.hz);
@@ -612,6 +650,7 @@ impl TrajectoryOptimizer {
             }
             check_finite("init", x)?;
         }
+        self.resume = None;
         let info = self.solve_checked(features, weights, start, goal, init.map(|x| (x, Start::Plan)), None)?;
         out.copy_from_slice(&self.traj);
         Ok(info)
@@ -625,7 +664,7 @@ impl TrajectoryOptimizer {
             levels.push(vec![0.0; c.optimizer.waypoints * self.dof]);
             next = c.optimizer.coarse.as_deref();
         }
-        PlanLevels { levels, dof: self.dof }
+        PlanLevels { states: vec![SolverState::default(); levels.len()], levels, weights: Vec::new(), dof: self.dof }
     }
 
     /// As [`TrajectoryOptimizer::solve`], but warm-starting from a plan *and* the coarse plans it
@@ -651,9 +690,19 @@ impl TrajectoryOptimizer {
                 check_finite("init", level)?;
             }
         }
-        let from = init.map(|l| (&l.levels[0][..], Start::Levels(&l.levels[1..])));
-        let info = self.solve_checked(features, weights, start, goal, from, Some(&mut out.levels[1..]))?;
+        // The same weights: the solve goes on where the one that wrote `init` left off.
+        let resume = init.is_some_and(|l| l.weights == weights);
+        let from = init.map(|l| {
+            let states = if resume { Some(&l.states[..]) } else { None };
+            (&l.levels[0][..], Start::Levels { plans: &l.levels[1..], states })
+        });
+        self.resume = if resume { init.map(|l| l.states[0]) } else { None };
+        let below = LevelsOut { plans: &mut out.levels[1..], states: &mut out.states[1..] };
+        let info = self.solve_checked(features, weights, start, goal, from, Some(below))?;
         out.levels[0].copy_from_slice(&self.traj);
+        out.states[0] = self.state;
+        out.weights.clear();
+        out.weights.extend_from_slice(weights);
         Ok(info)
     }
 
@@ -682,7 +731,7 @@ impl TrajectoryOptimizer {
         start: &[f64],
         goal: &[f64],
         init: Option<(&[f64], Start<'_>)>,
-        levels: Option<&mut [Vec<f64>]>,
+        levels: Option<LevelsOut<'_>>,
     ) -> Result<TrajoptInfo> {
         let (n, m) = (self.dof, self.waypoints);
         if features.model().nq() != n {
@@ -745,32 +794,34 @@ impl TrajectoryOptimizer {
         weights: &[f64],
         deadline: Option<Instant>,
         start: Start<'_>,
-        levels: Option<&mut [Vec<f64>]>,
+        levels: Option<LevelsOut<'_>>,
     ) -> (usize, usize, usize, f64, f64, bool) {
-        let coarse_iterations = match start {
-            Start::Plan => 0,
+        let (coarse_iterations, coarse_converged) = match start {
+            Start::Plan => (0, true),
             _ => self.coarse_correction(features, weights, deadline, start, levels),
         };
         let (iterations, evaluations, cost, penalty, converged) = match self.params.method {
             TrajoptMethod::Newton => self.run_newton(features, weights, deadline),
             TrajoptMethod::Lbfgs => self.run_lbfgs(features, weights, deadline),
         };
-        (iterations, coarse_iterations, evaluations, cost, penalty, converged)
+        // A coarse level cut short by a cap still has work to hand down: not converged.
+        (iterations, coarse_iterations, evaluations, cost, penalty, converged && coarse_converged)
     }
 
     /// The multiresolution start (module docs): solves the coarse level — from its straight line
     /// (`Start::Line`), or from the coarse plan that goes with `traj` (`Start::Levels`) — and sets
     /// `traj` to the interpolated coarse plan, or adds the interpolated change of the coarse plan
-    /// to it. Writes the coarse plans to `levels[1..]`. Returns the coarse levels' iterations.
+    /// to it. Writes the coarse plans to `levels[1..]`. Returns the coarse levels' iterations and
+    /// whether they all converged.
     fn coarse_correction(
         &mut self,
         features: &mut FeatureSet,
         weights: &[f64],
         deadline: Option<Instant>,
         start: Start<'_>,
-        levels: Option<&mut [Vec<f64>]>,
-    ) -> usize {
-        let Some(mut coarse) = self.coarse.take() else { return 0 };
+        levels: Option<LevelsOut<'_>>,
+    ) -> (usize, bool) {
+        let Some(mut coarse) = self.coarse.take() else { return (0, true) };
         let (n, m) = (self.dof, self.waypoints);
         let c = &mut *coarse;
         for (k, w) in weights.iter().enumerate() {
@@ -779,9 +830,11 @@ impl TrajectoryOptimizer {
         let co = &mut c.optimizer;
         let cm = co.waypoints;
         let (first, last) = (&self.traj[..n], &self.traj[(m - 1) * n..]);
+        co.resume = None;
         let below = match start {
-            Start::Levels(given) => {
-                co.traj.copy_from_slice(&given[0]);
+            Start::Levels { plans, states } => {
+                co.resume = states.map(|s| s[0]);
+                co.traj.copy_from_slice(&plans[0]);
                 co.traj[..n].copy_from_slice(first);
                 co.traj[(cm - 1) * n..].copy_from_slice(last);
                 for i in 1..cm - 1 {
@@ -791,7 +844,7 @@ impl TrajectoryOptimizer {
                     }
                 }
                 c.start.copy_from_slice(&co.traj);
-                Start::Levels(&given[1..])
+                Start::Levels { plans: &plans[1..], states: states.map(|s| &s[1..]) }
             }
             _ => {
                 let mut line = std::mem::take(&mut co.traj);
@@ -800,16 +853,18 @@ impl TrajectoryOptimizer {
                 Start::Line
             }
         };
-        let (iterations, coarse_iterations, ..) = match levels {
+        let (iterations, coarse_iterations, _, _, _, converged) = match levels {
             Some(out) => {
-                let (mine, rest) = out.split_first_mut().expect("one plan per level");
-                let result = co.solve_prepared(features, &c.weights, deadline, below, Some(rest));
-                mine.copy_from_slice(&co.traj);
+                let (plan, plans) = out.plans.split_first_mut().expect("one plan per level");
+                let (state, states) = out.states.split_first_mut().expect("one state per level");
+                let result = co.solve_prepared(features, &c.weights, deadline, below, Some(LevelsOut { plans, states }));
+                plan.copy_from_slice(&co.traj);
+                *state = co.state;
                 result
             }
             None => co.solve_prepared(features, &c.weights, deadline, below, None),
         };
-        let correct = matches!(start, Start::Levels(_));
+        let correct = matches!(start, Start::Levels { .. });
         for (i, taps) in c.up.iter().enumerate().take(m - 1).skip(1) {
             for j in 0..n {
                 let k = i * n + j;
@@ -822,7 +877,7 @@ impl TrajectoryOptimizer {
             }
         }
         self.coarse = Some(coarse);
-        iterations + coarse_iterations
+        (iterations + coarse_iterations, converged)
     }
 
     /// Marks the interior variables held at a bound (gradient pushing outward) and returns the
@@ -1193,7 +1248,9 @@ impl TrajectoryOptimizer {
     ) -> (usize, usize, f64, f64, bool) {
         let (n, m) = (self.dof, self.waypoints);
         let (lo, hi) = (n, (m - 1) * n); // interior range
-        let (mut cost, mut penalty) = self.evaluate(features, weights, Buffer::Current, Level::Hessian);
+        let resume = self.resume.take();
+        self.exact_curvature = self.params.kinematic_curvature == KinematicCurvature::Exact || resume.is_some_and(|r| r.exact);
+        let (mut cost, mut penalty) = self.evaluate(features, weights, Buffer::Current, Derivatives::Hessian);
         let mut evaluations = 1;
         let mut iterations = 0;
         let mut converged = false;
@@ -1202,8 +1259,9 @@ impl TrajectoryOptimizer {
             / ((m - 2) * n) as f64;
         let scale = if scale.is_finite() && scale > 0.0 { scale } else { 1.0 };
         let (lambda_min, lambda_max) = (1e-8 * scale, 1e12 * scale);
-        let mut lambda = lambda_min;
+        let mut lambda = resume.map_or(lambda_min, |r| (r.lambda * scale).clamp(lambda_min, lambda_max));
         let mut largest = self.mark_fixed();
+        let mut fell_back = false;
         while iterations < self.params.max_iterations {
             if largest <= self.params.gradient_tolerance {
                 converged = true;
@@ -1214,15 +1272,20 @@ impl TrajectoryOptimizer {
             }
             iterations += 1;
             lambda = (lambda * 0.25).max(lambda_min);
-            let Some((predicted, consistent)) = self.newton_step(&mut lambda, scale, lambda_max) else { break };
-            // Clip the step to the joint limits.
-            for i in 1..m - 1 {
-                for j in 0..n {
-                    let k = i * n + j;
-                    let x = (self.traj[k] + self.direction[k]).clamp(self.lower[j], self.upper[j]);
-                    self.direction[k] = x - self.traj[k];
-                }
+            let Some((mut predicted, mut consistent)) = self.newton_step(&mut lambda, scale, lambda_max) else { break };
+            if self.hold_variables_the_step_pushes_out() {
+                // Held at their bound too (the gradient alone let the step leave the box there,
+                // and clipped it would not be a descent direction): step again without them.
+                let Some(step) = self.newton_step(&mut lambda, scale, lambda_max) else { break };
+                (predicted, consistent) = step;
             }
+            let settled = consistent && predicted <= SETTLED_DECREASE * cost.abs() && !fell_back;
+            if settled && self.params.kinematic_curvature == KinematicCurvature::Settled {
+                // The next models (from the trial points on) include the kinematic curvature.
+                self.exact_curvature = true;
+            }
+            // The slope of the projected path clip(x + α·d) at α = 0: the variables strictly inside
+            // the box move along d, and those at a bound that d pushes out are held (above).
             let slope = dot(&self.grad[lo..hi], &self.direction[lo..hi]);
             if consistent && predicted <= self.params.relative_tolerance * cost.abs().max(1e-300) && lambda <= 1e-4 * scale {
                 // The model predicts no further decrease worth a step: converged.
@@ -1230,8 +1293,11 @@ impl TrajectoryOptimizer {
                 break;
             }
             if !(slope < 0.0) {
-                // Not a descent direction (the pieces' model is only linearised): damp harder.
-                lambda = (lambda * 16.0).max(1e-4 * scale);
+                // Not a descent direction (the pieces' model is only linearised): damp harder, or
+                // first drop a kinematic curvature taken on too early.
+                if !self.drop_settled_curvature(features, weights, &mut fell_back) {
+                    lambda = (lambda * 16.0).max(1e-4 * scale);
+                }
                 continue;
             }
             // Backtracking along the projected path x(α) = clip(x + α·d), α from 1, with a
@@ -1248,9 +1314,12 @@ impl TrajectoryOptimizer {
                 }
                 self.trial[..lo].copy_from_slice(&self.traj[..lo]);
                 self.trial[hi..].copy_from_slice(&self.traj[hi..]);
-                (new_cost, new_penalty) = self.evaluate(features, weights, Buffer::Trial, Level::Hessian);
+                (new_cost, new_penalty) = self.evaluate(features, weights, Buffer::Trial, Derivatives::Hessian);
                 evaluations += 1;
-                if new_cost.is_finite() && new_cost <= cost + 1e-4 * alpha * slope {
+                // Armijo along the projected path: a fraction of the decrease the gradient predicts
+                // for the move actually made (shorter than α·d where the box cuts it).
+                let moved: f64 = (lo..hi).map(|k| self.grad[k] * (self.trial[k] - self.traj[k])).sum();
+                if new_cost.is_finite() && new_cost <= cost + 1e-4 * moved {
                     accepted = true;
                     break;
                 }
@@ -1267,7 +1336,13 @@ impl TrajectoryOptimizer {
                 alpha = next.clamp(0.1 * alpha, 0.5 * alpha);
             }
             if !accepted {
-                // The model misleads at this damping: damp harder and try again.
+                // The model misleads at this damping: if it took on the kinematic curvature when the
+                // active set seemed settled, that was too early (the exact Hessian can be indefinite
+                // away from the optimum and mislead at any damping): go back to Gauss–Newton for
+                // the rest of the solve. Otherwise damp harder and try again.
+                if self.drop_settled_curvature(features, weights, &mut fell_back) {
+                    continue;
+                }
                 lambda = (lambda * 16.0).max(1e-4 * scale);
                 if lambda > lambda_max {
                     converged = cost.is_finite(); // no step of any length helps: stationary
@@ -1282,12 +1357,45 @@ impl TrajectoryOptimizer {
             cost = new_cost;
             penalty = new_penalty;
             largest = self.mark_fixed();
-            if alpha == 1.0 && decrease <= self.params.relative_tolerance * cost.abs().max(1e-300) {
+            if alpha == 1.0 && decrease <= self.params.relative_tolerance * cost.abs().max(1e-300) && lambda <= 1e-4 * scale {
+                // (A heavily damped step is short whatever is left to gain: not a sign of the end.)
                 converged = true;
                 break;
             }
         }
+        self.state = SolverState { lambda: lambda / scale, exact: self.exact_curvature };
         (iterations, evaluations, cost, penalty, converged)
+    }
+
+    /// Marks as fixed the free interior variables at a bound that `direction` pushes further out;
+    /// returns whether there were any.
+    fn hold_variables_the_step_pushes_out(&mut self) -> bool {
+        let n = self.dof;
+        let mut any = false;
+        for i in 1..self.waypoints - 1 {
+            for j in 0..n {
+                let k = i * n + j;
+                let (x, d) = (self.traj[k], self.direction[k]);
+                if !self.fixed[k] && ((x <= self.lower[j] && d < 0.0) || (x >= self.upper[j] && d > 0.0)) {
+                    self.fixed[k] = true;
+                    any = true;
+                }
+            }
+        }
+        any
+    }
+
+    /// With [`KinematicCurvature::Settled`] and the kinematic curvature on: turns it off for the
+    /// rest of the solve (`fell_back`) and rebuilds the current model without it. Returns whether
+    /// it did.
+    fn drop_settled_curvature(&mut self, features: &mut FeatureSet, weights: &[f64], fell_back: &mut bool) -> bool {
+        if !(self.exact_curvature && self.params.kinematic_curvature == KinematicCurvature::Settled) {
+            return false;
+        }
+        self.exact_curvature = false;
+        *fell_back = true;
+        self.evaluate(features, weights, Buffer::Current, Derivatives::Hessian);
+        true
     }
 
     /// Projected L-BFGS with H0 = γ·metric⁻¹; returns (iterations, evaluations, cost, penalty,
@@ -1300,7 +1408,7 @@ impl TrajectoryOptimizer {
     ) -> (usize, usize, f64, f64, bool) {
         let (n, m) = (self.dof, self.waypoints);
         let (lo, hi) = (n, (m - 1) * n); // interior range
-        let (mut cost, mut penalty) = self.evaluate(features, weights, Buffer::Current, Level::Gradient);
+        let (mut cost, mut penalty) = self.evaluate(features, weights, Buffer::Current, Derivatives::Gradient);
         let mut evaluations = 1;
         let mut stored = 0usize; // history entries in use
         let mut newest = 0usize;
@@ -1363,7 +1471,7 @@ impl TrajectoryOptimizer {
                         self.trial[k] = (self.traj[k] - step * self.direction[k]).clamp(self.lower[j], self.upper[j]);
                     }
                 }
-                (new_cost, new_penalty) = self.evaluate(features, weights, Buffer::Trial, Level::Gradient);
+                (new_cost, new_penalty) = self.evaluate(features, weights, Buffer::Trial, Derivatives::Gradient);
                 evaluations += 1;
                 let moved: f64 = (lo..hi).map(|k| self.grad[k] * (self.trial[k] - self.traj[k])).sum();
                 if new_cost.is_finite() && new_cost <= cost + 1e-4 * moved.min(0.0) {
@@ -1533,8 +1641,23 @@ enum Start<'a> {
     Line,
     /// From a given plan, on its waypoints only.
     Plan,
-    /// From a given plan (in `traj`) and the coarse plans that go with it, coarsest last.
-    Levels(&'a [Vec<f64>]),
+    /// From a given plan (in `traj`) and the coarse plans that go with it, coarsest last, with the
+    /// coarse solvers' states to resume from.
+    Levels { plans: &'a [Vec<f64>], states: Option<&'a [SolverState]> },
+}
+
+/// Where the coarse levels' plans and solver states go (see [`PlanLevels`]).
+struct LevelsOut<'a> {
+    plans: &'a mut [Vec<f64>],
+    states: &'a mut [SolverState],
+}
+
+/// Where a Newton solve left off: its damping relative to the curvature scale (0: not started)
+/// and whether its model had the kinematic curvature.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct SolverState {
+    lambda: f64,
+    exact: bool,
 }
 
 #[derive(Clone, Copy)]

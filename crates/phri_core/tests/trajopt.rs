@@ -137,12 +137,15 @@ fn the_study_planner_converges_on_every_task_at_31_and_100_waypoints() {
             assert!(info.max_violation < 1e-3, "{feature}: clearance violated by {}", info.max_violation);
             assert_eq!(&plan[..7], &start[..]);
             assert_eq!(&plan[(waypoints - 1) * 7..], &goal[..]);
-            // The objective at the plan is what the solve reports, with a vanishing gradient.
+            // The objective at the plan is what the solve reports, with a vanishing gradient: the
+            // solver stops on its predicted decrease (relative 1e-9), and along the clearance
+            // penalty's stiff directions (curvature 2ρ‖∇z‖² ≈ 10³) a gradient of 10⁻³ is a step of
+            // 10⁻⁶ rad from the optimum.
             let mut grad = vec![0.0; waypoints * 7];
             let (cost, penalty) = opt.objective(&mut fs, &[1.0, weight], &plan, &mut grad).unwrap();
             assert_eq!((cost, penalty), (info.cost, info.penalty));
             let largest = grad[7..(waypoints - 1) * 7].iter().fold(0.0f64, |a, g| a.max(g.abs()));
-            assert!(largest < 1e-4, "{feature} N={waypoints}: gradient {largest}");
+            assert!(largest < 1e-3, "{feature} N={waypoints}: gradient {largest}");
         }
     }
 }
@@ -258,4 +261,36 @@ fn plan_levels_of_the_wrong_shape_are_typed_errors() {
     bad.level_mut(1)[3] = f64::NAN;
     let err = opt.solve_levels(&mut fs, &[1.0, 1.0], &start, &goal, Some(&bad), &mut out).unwrap_err();
     assert!(matches!(err, PhriError::NonFinite { .. }), "{err}");
+}
+
+#[test]
+fn plans_pressed_against_the_joint_limits_converge_whole_or_a_few_iterations_at_a_time() {
+    // Without a clearance the raw table feature pulls link_7 down until joints reach their limits:
+    // the projected Newton steps must hold the variables the step pushes out of the box, and a
+    // solve cut into pieces by an iteration cap (the learner's per-tick budget) must go on from
+    // where each piece stopped, coarse levels included, to the optimum of the whole solve.
+    let (start, goal) = (deg(PICK_BASIC), deg(PLACE_LOWER));
+    let (mut fs, _) = setup("table");
+    let mut full = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
+    let mut capped = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { max_iterations: 2, ..Default::default() }).unwrap();
+    let mut base = full.plan_levels();
+    full.solve_levels(&mut fs, &[1.0, 0.0], &start, &goal, None, &mut base).unwrap();
+    let mut whole = full.plan_levels();
+    let info = full.solve_levels(&mut fs, &[1.0, 1.0], &start, &goal, Some(&base), &mut whole).unwrap();
+    assert!(info.converged, "{info:?}");
+    let (lower, upper) = (fs.model().lower_limits(), fs.model().upper_limits());
+    let at_limit = whole.plan().chunks(7).any(|q| q.iter().enumerate().any(|(j, v)| *v <= lower[j] || *v >= upper[j]));
+    assert!(at_limit, "the test needs a plan at the joint limits");
+    let (mut levels, mut out) = (base.clone(), capped.plan_levels());
+    let mut calls = 0;
+    let last = loop {
+        calls += 1;
+        let piece = capped.solve_levels(&mut fs, &[1.0, 1.0], &start, &goal, Some(&levels), &mut out).unwrap();
+        std::mem::swap(&mut levels, &mut out);
+        assert!(piece.iterations <= 2 && calls < 100, "{piece:?} after {calls} calls");
+        if piece.converged {
+            break piece;
+        }
+    };
+    assert!((last.cost - info.cost).abs() <= 1e-8 * info.cost.abs(), "{last:?} vs {info:?}");
 }

@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use phri_core::features::FeatureSet;
-use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptInfo, TrajoptMethod, TrajoptParams};
+use phri_core::trajopt::{Clearance, KinematicCurvature, TrajectoryOptimizer, TrajoptInfo, TrajoptMethod, TrajoptParams};
 use pyo3::prelude::*;
 
 use crate::arrays::{matrix, vector, ArrayIn};
@@ -59,9 +59,10 @@ impl PyTrajoptInfo {
 /// `max_step` [rad] bounding each joint's move between waypoints (velocity limit × spacing); both
 /// are quadratic penalties (weights `clearance_weight`, `step_weight`). `method` is "newton"
 /// (projected Newton on the block-tridiagonal Hessian, the default) or "lbfgs" (the earlier
-/// projected L-BFGS; `memory` applies to it only). `kinematic_curvature` makes the Newton model
-/// include the second derivatives of the kinematics of the table, coffee and origin features and
-/// the clearance (default False: their Gauss–Newton part, measured to converge in fewer steps).
+/// projected L-BFGS; `memory` applies to it only). `kinematic_curvature` says how the Newton model
+/// treats the second derivatives of the kinematics of the table, coffee and origin features and
+/// the clearance: "gauss-newton" leaves them out, "exact" includes them, "settled" (the default)
+/// leaves them out until the model's active set settles and includes them from then on.
 /// `coarsening` (default 3; 0 or 1 for none) solves first on coarser copies of the problem with
 /// about 1/`coarsening` of the segments each, down to `coarsest` waypoints (multiresolution: a
 /// cold plan starts from the coarse plan; see `phri_core::trajopt`).
@@ -77,7 +78,7 @@ impl PyTrajectoryOptimizer {
     #[pyo3(signature = (
         features, waypoints = 31, *, clearance = None, clearance_weight = 1e3, max_iterations = 500,
         max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-9, memory = 20, smoothing = 0.05,
-        max_step = None, step_weight = 1e3, method = "newton", kinematic_curvature = false, coarsening = 3,
+        max_step = None, step_weight = 1e3, method = "newton", kinematic_curvature = "settled", coarsening = 3,
         coarsest = 8
     ))]
     #[allow(clippy::too_many_arguments)]
@@ -95,7 +96,7 @@ impl PyTrajectoryOptimizer {
         max_step: Option<ArrayIn<'_>>,
         step_weight: f64,
         method: &str,
-        kinematic_curvature: bool,
+        kinematic_curvature: &str,
         coarsening: usize,
         coarsest: usize,
     ) -> PyResult<Self> {
@@ -120,6 +121,17 @@ impl PyTrajectoryOptimizer {
             "lbfgs" => TrajoptMethod::Lbfgs,
             other => {
                 return Err(error(Kind::InvalidParameter, format!("method must be 'newton' or 'lbfgs', got {other:?}")));
+            }
+        };
+        let kinematic_curvature = match kinematic_curvature {
+            "gauss-newton" => KinematicCurvature::GaussNewton,
+            "settled" => KinematicCurvature::Settled,
+            "exact" => KinematicCurvature::Exact,
+            other => {
+                return Err(error(
+                    Kind::InvalidParameter,
+                    format!("kinematic_curvature must be 'gauss-newton', 'settled' or 'exact', got {other:?}"),
+                ));
             }
         };
         let params = TrajoptParams {

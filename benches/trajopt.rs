@@ -20,7 +20,7 @@
 //! t = 2, 4, 6, 8 s on fresh learners.
 //!
 //! The observe rows repeat the pushes with seed plans (`LearnerParams::seeds` = 5) and with a
-//! per-call budget (`LearnerParams::replan_iterations` = 8): every call that does work (the pushes,
+//! per-call budget (`LearnerParams::replan_iterations` = 5): every call that does work (the pushes,
 //! and the 1 kHz ticks that go on with an unfinished replan) is timed.
 //!
 //! `cargo bench -p phri_benches --bench trajopt`; under `cargo test --benches` each criterion
@@ -210,7 +210,7 @@ fn tails(reps: usize) {
     let variants = [
         ("", LearnerParams::default()),
         (" seeds 5", LearnerParams { seeds: SEEDS, ..Default::default() }),
-        (" budget 8", LearnerParams { replan_iterations: REPLAN_BUDGET, ..Default::default() }),
+        (" budget 5", LearnerParams { replan_iterations: REPLAN_BUDGET, ..Default::default() }),
     ];
     for (label, params) in variants {
         observe_rows(&model, label, &params, reps);
@@ -256,7 +256,7 @@ fn observe_rows(model: &Arc<RobotModel>, label: &str, params: &LearnerParams, re
 }
 
 /// Newton iterations per `observe` call in the budgeted rows (`LearnerParams::replan_iterations`).
-const REPLAN_BUDGET: usize = 8;
+const REPLAN_BUDGET: usize = 5;
 
 fn main() {
     benches();

@@ -19,8 +19,11 @@ use crate::update::{PyUpdateInfo, PyWeightUpdate};
 /// are copied in, so the objects passed can be reused. `learning=False` is the impedance baseline.
 /// After a replan the reference blends into the new plan with joint speeds of at most
 /// `transition_speed` × the velocity limits (0: switch at once, as the original did).
-/// `replan_iterations` caps the Newton iterations of a replan per `observe` call (0: to
-/// convergence at once); an unfinished replan goes on at the next calls (`replan_pending`).
+/// Replans start from the current plan and the optimiser's coarse plans that led to it (see
+/// `TrajectoryOptimizer`'s `coarsening`), so a large change of the weights is mostly worked out
+/// on the coarse level. `replan_iterations` caps the Newton iterations of a replan per `observe`
+/// call on each level (0: to convergence at once); an unfinished replan goes on at the next calls
+/// from where it stopped (`replan_pending`).
 /// `seeds` plans s values of every learned weight between its bounds at construction (s^L plans,
 /// at most 64) and starts each replan from the better of the current plan and the nearest seed.
 #[pyclass(name = "Learner", module = "phri._phri")]

@@ -272,3 +272,29 @@ def test_every_kinematic_curvature_mode_reaches_the_optimum(name, solved) -> Non
             assert abs(other.cost - info.cost) <= 1e-7 * abs(info.cost), (mode, other, info)
     with pytest.raises(ex.InvalidParameterError, match="kinematic_curvature"):
         peers.phri_optimizer(problem, kinematic_curvature="yes")
+
+
+def test_warm_starts_through_the_coarse_levels() -> None:
+    problem = peers.study_problem("human")
+    opt = peers.phri_optimizer(problem)
+    base, info0 = opt.solve_levels(problem.weights * [1.0, 0.0], problem.start, problem.goal)
+    assert isinstance(base, phri.PlanLevels) and len(base) == 2
+    assert base.plan.shape == (31, 7) and base.level(1).shape == (11, 7)
+    np.testing.assert_array_equal(base.level(0), base.plan)
+    plain, _ = opt.solve(problem.weights * [1.0, 0.0], problem.start, problem.goal)
+    np.testing.assert_array_equal(base.plan, plain)  # a cold solve is the same either way
+    # The first push's jump 0 → true weight: the coarse level does most of the work.
+    levels, info = opt.solve_levels(problem.weights, problem.start, problem.goal, init=base)
+    _, direct = opt.solve(problem.weights, problem.start, problem.goal, init=base.plan)
+    assert info.converged and direct.converged
+    assert info.iterations < direct.iterations and info.coarse_iterations > 0, (info, direct)
+    assert abs(info.cost - direct.cost) <= 1e-8 * direct.cost
+    # The same weights again: nothing left to do.
+    _, again = opt.solve_levels(problem.weights, problem.start, problem.goal, init=levels)
+    assert again.converged and again.iterations <= 2, again
+    with pytest.raises(ex.ShapeError, match="init"):
+        peers.phri_optimizer(problem, coarsening=0).solve_levels(
+            problem.weights, problem.start, problem.goal, init=levels
+        )
+    with pytest.raises(ex.InvalidParameterError, match="k must be below 2"):
+        levels.level(2)

@@ -12,6 +12,7 @@ __all__ = [
     "ImpedanceController",
     "InteractionDetector",
     "Learner",
+    "PlanLevels",
     "Robot",
     "TimedTrajectory",
     "TrajectoryOptimizer",
@@ -302,6 +303,18 @@ class TrajectoryOptimizer:
     def solve(
         self, weights: _Array, start: _Array, goal: _Array, init: _Array | None = None
     ) -> tuple[_F64, TrajoptInfo]: ...
+    def solve_levels(
+        self, weights: _Array, start: _Array, goal: _Array, init: PlanLevels | None = None
+    ) -> tuple[PlanLevels, TrajoptInfo]: ...
+
+@final
+class PlanLevels:
+    """A plan with the plans of its optimiser's coarse levels it came from."""
+
+    @property
+    def plan(self) -> _F64: ...
+    def level(self, k: int) -> _F64: ...
+    def __len__(self) -> int: ...
 
 @final
 class Learner:

@@ -29,6 +29,7 @@ fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<deform::PyDeformation>()?;
     m.add_class::<trajopt::PyTrajectoryOptimizer>()?;
     m.add_class::<trajopt::PyTrajoptInfo>()?;
+    m.add_class::<trajopt::PyPlanLevels>()?;
     m.add_class::<learner::PyLearner>()?;
     Ok(())
 }

@@ -4,7 +4,9 @@ use std::time::Duration;
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use phri_core::features::FeatureSet;
-use phri_core::trajopt::{Clearance, KinematicCurvature, TrajectoryOptimizer, TrajoptInfo, TrajoptMethod, TrajoptParams};
+use phri_core::trajopt::{
+    Clearance, KinematicCurvature, PlanLevels, TrajectoryOptimizer, TrajoptInfo, TrajoptMethod, TrajoptParams,
+};
 use pyo3::prelude::*;
 
 use crate::arrays::{matrix, vector, ArrayIn};
@@ -219,6 +221,32 @@ impl PyTrajectoryOptimizer {
         Ok((PyArray1::from_vec(py, plan).reshape([m, n])?, info.into()))
     }
 
+    /// As `solve`, but warm-started from `init`, a `PlanLevels` that an earlier `solve_levels` of
+    /// this optimiser returned: a plan and the coarse plans it came from. The coarse level replans
+    /// from its own plan and hands its change down, so a large change of the weights is mostly
+    /// worked out there (the learner replans this way); for the same weights as `init` the solve
+    /// goes on where that one stopped (e.g. after `max_iterations`). `init=None` plans from the
+    /// straight line. Returns (PlanLevels, TrajoptInfo).
+    #[pyo3(signature = (weights, start, goal, init = None))]
+    fn solve_levels<'py>(
+        &mut self,
+        py: Python<'py>,
+        weights: ArrayIn<'py>,
+        start: ArrayIn<'py>,
+        goal: ArrayIn<'py>,
+        init: Option<PyRef<'py, PyPlanLevels>>,
+    ) -> PyResult<(PyPlanLevels, PyTrajoptInfo)> {
+        let n = self.features.model().nq();
+        let weights = vector("weights", &weights, self.features.len())?.into_owned();
+        let start = vector("start", &start, n)?.into_owned();
+        let goal = vector("goal", &goal, n)?.into_owned();
+        let init = init.map(|l| l.levels.clone());
+        let mut out = self.optimizer.plan_levels();
+        let (optimizer, features) = (&mut self.optimizer, &mut self.features);
+        let info = py.detach(|| optimizer.solve_levels(features, &weights, &start, &goal, init.as_ref(), &mut out)).py_err()?;
+        Ok((PyPlanLevels { levels: out, n }, info.into()))
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "TrajectoryOptimizer(waypoints={}, features={:?}, method={:?})",
@@ -226,5 +254,41 @@ impl PyTrajectoryOptimizer {
             self.features.names(),
             self.method()
         )
+    }
+}
+
+/// A plan with the plans of its optimiser's coarse levels it came from (see
+/// `TrajectoryOptimizer.solve_levels`): `plan` (N, n), `level(k)` for k in 0..len (0 is the plan).
+#[pyclass(name = "PlanLevels", module = "phri._phri", frozen)]
+pub struct PyPlanLevels {
+    levels: PlanLevels,
+    n: usize,
+}
+
+#[pymethods]
+impl PyPlanLevels {
+    /// The plan (N, n) [rad].
+    #[getter]
+    fn plan<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        self.level(py, 0)
+    }
+
+    /// Level `k` (waypoints, n) [rad]: 0 is the plan, then ever coarser.
+    fn level<'py>(&self, py: Python<'py>, k: usize) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        if k >= self.levels.len() {
+            return Err(error(Kind::InvalidParameter, format!("k must be below {}, got {k}", self.levels.len())));
+        }
+        let level = self.levels.level(k).to_vec();
+        let rows = level.len() / self.n;
+        Ok(PyArray1::from_vec(py, level).reshape([rows, self.n])?)
+    }
+
+    fn __len__(&self) -> usize {
+        self.levels.len()
+    }
+
+    fn __repr__(&self) -> String {
+        let rows: Vec<usize> = (0..self.levels.len()).map(|k| self.levels.level(k).len() / self.n).collect();
+        format!("PlanLevels(waypoints={rows:?})")
     }
 }

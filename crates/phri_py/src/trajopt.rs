@@ -280,7 +280,7 @@ impl PyPlanLevels {
         }
         let level = self.levels.level(k).to_vec();
         let rows = level.len() / self.n;
-        Ok(PyArray1::from_vec(py, level).reshape([rows, self.n])?)
+        PyArray1::from_vec(py, level).reshape([rows, self.n])
     }
 
     fn __len__(&self) -> usize {

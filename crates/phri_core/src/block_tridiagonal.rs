@@ -76,6 +76,59 @@ impl BlockTridiagonal {
         }
     }
 
+    /// y = H·x over the waypoints `first..=last` (rows of n in `x` and `y`; the blocks coupling to
+    /// waypoints outside the range are left out, as for the interior of a trajectory).
+    pub fn product(&self, x: &[f64], y: &mut [f64], first: usize, last: usize) {
+        match self.n {
+            6 => self.product_sized(Fixed::<6>, x, y, first, last),
+            7 => self.product_sized(Fixed::<7>, x, y, first, last),
+            n => self.product_sized(Dynamic(n), x, y, first, last),
+        }
+    }
+
+    #[inline(always)]
+    fn product_sized<S: BlockSize>(&self, size: S, x: &[f64], y: &mut [f64], first: usize, last: usize) {
+        let n = size.n();
+        let nn = n * n;
+        for i in first..=last {
+            let yi = &mut y[i * n..(i + 1) * n];
+            let d = &self.diag[i * nn..(i + 1) * nn];
+            let xi = &x[i * n..(i + 1) * n];
+            for r in 0..n {
+                let row = &d[r * n..(r + 1) * n];
+                let mut acc = 0.0;
+                for c in 0..n {
+                    acc += row[c] * xi[c];
+                }
+                yi[r] = acc;
+            }
+            if i < last {
+                // Block (i, i+1), row-major.
+                let o = &self.off[i * nn..(i + 1) * nn];
+                let xn = &x[(i + 1) * n..(i + 2) * n];
+                for r in 0..n {
+                    let row = &o[r * n..(r + 1) * n];
+                    let mut acc = 0.0;
+                    for c in 0..n {
+                        acc += row[c] * xn[c];
+                    }
+                    yi[r] += acc;
+                }
+            }
+            if i > first {
+                // Block (i, i−1) = (i−1, i)ᵀ: its rows scaled by x_{i−1} and summed.
+                let o = &self.off[(i - 1) * nn..i * nn];
+                let xp = &x[(i - 1) * n..i * n];
+                for r in 0..n {
+                    let (a, row) = (xp[r], &o[r * n..(r + 1) * n]);
+                    for c in 0..n {
+                        yi[c] += row[c] * a;
+                    }
+                }
+            }
+        }
+    }
+
     pub(crate) fn diag_mut(&mut self, i: usize) -> &mut [f64] {
         &mut self.diag[i * self.n * self.n..(i + 1) * self.n * self.n]
     }
@@ -462,6 +515,21 @@ mod tests {
         let expect = a.lu().solve(&b).expect("non-singular");
         for k in 0..blocks * n {
             assert!((x[first * n + k] - expect[k]).abs() < 1e-12, "entry {k}: {} vs {}", x[first * n + k], expect[k]);
+        }
+    }
+
+    #[test]
+    fn the_product_is_the_dense_one_over_the_range() {
+        for n in [3, 7] {
+            let h = random_matrix(n, 9, 5 + n as u64);
+            let x: Vec<f64> = (0..9 * n).map(|k| (k as f64 * 0.29).sin()).collect();
+            let mut y = vec![0.0; 9 * n];
+            h.product(&x, &mut y, 2, 6);
+            let a = dense(&h, 2, 5);
+            let expect = a * nalgebra::DVector::from_column_slice(&x[2 * n..7 * n]);
+            for k in 0..5 * n {
+                assert!((y[2 * n + k] - expect[k]).abs() < 1e-12, "n = {n}, entry {k}");
+            }
         }
     }
 

@@ -1065,25 +1065,11 @@ impl TrajectoryOptimizer {
                 if ws == 0.0 || w == 0 || w == m - 1 {
                     continue;
                 }
-                for r in 0..n {
-                    self.rhs[w * n + r] -= c * f0 * ws * a[r];
-                }
-                let block = &mut self.system.diag[w * nn..(w + 1) * nn];
-                for r in 0..n {
-                    let ar = c * ws * ws * a[r];
-                    for col in 0..n {
-                        block[r * n + col] += ar * a[col];
-                    }
-                }
+                axpy(-c * f0 * ws, a, &mut self.rhs[w * n..(w + 1) * n]);
+                add_outer(&mut self.system.diag[w * nn..(w + 1) * nn], a, c * ws * ws);
             }
             if s > 0.0 && s < 1.0 && i >= 2 && i < m - 1 {
-                let block = &mut self.system.off[(i - 1) * nn..i * nn];
-                let cs = c * s * (1.0 - s);
-                for r in 0..n {
-                    for col in 0..n {
-                        block[r * n + col] += cs * a[r] * a[col];
-                    }
-                }
+                add_outer(&mut self.system.off[(i - 1) * nn..i * nn], a, c * s * (1.0 - s));
             }
         }
         if !self.params.max_step.is_empty() {
@@ -1138,30 +1124,20 @@ impl TrajectoryOptimizer {
     /// damping of [`damping`]).
     fn smooth_times(&self, x: &[f64], y: &mut [f64], lambda: f64) {
         let (n, m) = (self.dof, self.waypoints);
-        let nn = n * n;
-        let h = &self.model.hess;
+        self.model.hess.product(x, y, 1, m - 2);
+        // + λ·(I + κT)·x: T couples neighbouring interior waypoints.
+        let d = damping(lambda);
         for i in 1..m - 1 {
             for r in 0..n {
-                let row = &h.diag[i * nn + r * n..i * nn + (r + 1) * n];
-                // λ·(I + κT)·x: T couples neighbouring interior waypoints.
-                let d = damping(lambda);
-                let mut acc = dot(row, &x[i * n..(i + 1) * n]) + (d.diagonal + 2.0 * d.difference) * x[i * n + r];
+                let k = i * n + r;
+                let mut acc = (d.diagonal + 2.0 * d.difference) * x[k];
                 if i + 1 < m - 1 {
-                    acc -= d.difference * x[(i + 1) * n + r];
+                    acc -= d.difference * x[k + n];
                 }
                 if i > 1 {
-                    acc -= d.difference * x[(i - 1) * n + r];
+                    acc -= d.difference * x[k - n];
                 }
-                if i + 1 < m - 1 {
-                    acc += dot(&h.off[i * nn + r * n..i * nn + (r + 1) * n], &x[(i + 1) * n..(i + 2) * n]);
-                }
-                if i > 1 {
-                    let o = &h.off[(i - 1) * nn..i * nn];
-                    for c in 0..n {
-                        acc += o[c * n + r] * x[(i - 1) * n + c];
-                    }
-                }
-                y[i * n + r] = acc;
+                y[k] += acc;
             }
         }
     }
@@ -1689,6 +1665,15 @@ fn piece_dot(a: &[f64], d: &[f64], segment: usize, s: f64, n: usize) -> f64 {
 #[inline]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// block += scale·a·aᵀ (block n × n row-major, n = a.len()).
+#[inline]
+fn add_outer(block: &mut [f64], a: &[f64], scale: f64) {
+    for (row, ar) in block.chunks_exact_mut(a.len()).zip(a) {
+        let sr = scale * ar;
+        row.iter_mut().zip(a).for_each(|(b, ac)| *b += sr * ac);
+    }
 }
 
 #[inline]

@@ -219,6 +219,11 @@ fn max_inner(m: usize) -> usize {
 /// 30 to 1000 do about as well).
 const DAMPING_METRIC: f64 = 100.0;
 
+/// Least damping, relative to the curvature scale, once a factorisation has failed (then ×4 until
+/// one succeeds). Measured on the study's tasks against 10⁻⁴: the replans after the first push on
+/// the keep-out tasks take 8–17% fewer instructions, the others as many.
+const INDEFINITE_DAMPING: f64 = 1e-5;
+
 /// The Newton damping for λ (see [`DAMPING_METRIC`]).
 fn damping(lambda: f64) -> Damping {
     Damping { diagonal: lambda, difference: DAMPING_METRIC * lambda }
@@ -1102,7 +1107,7 @@ impl TrajectoryOptimizer {
             if self.cholesky.factor_from(&self.system, 1, damping(*lambda), &self.fixed, from) {
                 return true;
             }
-            *lambda = (*lambda * 4.0).max(1e-4 * scale);
+            *lambda = (*lambda * 4.0).max(INDEFINITE_DAMPING * scale);
             from = 0;
         }
         false

@@ -26,8 +26,12 @@
 //! - Convergence: the projected gradient below `gradient_tolerance`, or the model predicting a
 //!   decrease below `relative_tolerance`·|cost| with its pieces consistent (quadratic convergence
 //!   near the optimum makes this cheap), or a full step lowering the cost by less than that.
-//! - Joint limits: variables at a bound whose gradient pushes outward are held fixed (projected
-//!   Newton) and steps are clipped to the box.
+//! - Joint limits: variables at a bound whose gradient pushes outward, or that the step would push
+//!   further out, are held fixed (projected Newton); the line search follows the projected path
+//!   clip(x + α·d) and asks for a fraction of the decrease the gradient predicts for the move
+//!   actually made.
+//! - Kinematic curvature: Gauss–Newton for the table, coffee and origin features and the clearance
+//!   until the active set settles, exact from then on ([`KinematicCurvature`]).
 //!
 //! Typical counts on the study's tasks (N = 31, from the straight line, one level): 10–27
 //! iterations with about one cost evaluation each, against 100–500 for the L-BFGS solver.
@@ -41,15 +45,15 @@
 //! [`crate::features::Feature::resolution_exponent`]), the clearance weight r² and the step limits r.
 //! - A cold solve plans the coarse level first (recursively), interpolates its plan (a uniform
 //!   Catmull–Rom spline through the waypoints, which keeps straight lines) and finishes on the
-//!   given waypoints: 4–11 iterations there instead of 10–27 at N = 31, and 4–17 instead of 9–53 at
+//!   given waypoints: 3–8 iterations there instead of 10–27 at N = 31, and 3–8 instead of 9–53 at
 //!   N = 100, each level's iteration costing about in proportion to its waypoints.
 //! - A warm start from a plan alone ([`TrajectoryOptimizer::solve`] with `init`) stays on the given
 //!   waypoints. [`TrajectoryOptimizer::solve_levels`] warm-starts from a plan *and* the coarse plans
 //!   that led to it ([`PlanLevels`]): the coarse level replans from its own plan, and the change of
 //!   the coarse plan, interpolated, is added to the fine one, which the fine level then finishes. A
 //!   weight change that moves the path far (0 → 10 on the keep-out tasks: 19–20 fine iterations from
-//!   the plan alone) is then worked out on the coarse level (6–8 fine iterations), while a small
-//!   one costs a few coarse iterations more than it would alone. Adding the coarse *change* rather
+//!   the plan alone) is then worked out on the coarse level (14–17 iterations there, then 5–6 fine
+//!   ones), while a small one costs a few coarse iterations more than it would alone. Adding the coarse *change* rather
 //!   than taking the coarse plan keeps what the fine level had already resolved: a plan optimal for
 //!   the weights stays put. The learner replans this way.
 //!

@@ -51,7 +51,7 @@
 //!   that led to it ([`PlanLevels`]): the coarse level replans from its own plan, and the change of
 //!   the coarse plan, interpolated, is added to the fine one, which the fine level then finishes. A
 //!   weight change that moves the path far (0 → 10 on the keep-out tasks: 19–20 fine iterations from
-//!   the plan alone) is then worked out on the coarse level (14–17 iterations there, then 5–6 fine
+//!   the plan alone) is then worked out on the coarse level (14 iterations there, then 5–6 fine
 //!   ones), while a small one costs a few coarse iterations more than it would alone. Adding the coarse *change* rather
 //!   than taking the coarse plan keeps what the fine level had already resolved: a plan optimal for
 //!   the weights stays put. The learner replans this way.

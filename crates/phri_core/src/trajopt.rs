@@ -148,9 +148,9 @@ pub struct TrajoptParams {
     /// act at every waypoint (table, coffee, origin) and in the clearance penalty (default
     /// [`KinematicCurvature::Settled`]). See `features::SegmentHessian::kinematic`.
     pub kinematic_curvature: KinematicCurvature,
-    /// Multiresolution (see the module docs): every solve first corrects its initial trajectory
-    /// on a coarser copy of the problem with about 1/`coarsening` of the segments, recursively;
-    /// 0 or 1 solves on the given waypoints only. Default 3.
+    /// Multiresolution (see the module docs): a coarser copy of the problem with about
+    /// 1/`coarsening` of the segments, recursively, on which cold solves and `solve_levels` warm
+    /// starts begin; 0 or 1 solves on the given waypoints only. Default 3.
     pub coarsening: usize,
     /// Fewest waypoints of a coarse level (default 8): a level that would have fewer is not built.
     pub coarsest: usize,

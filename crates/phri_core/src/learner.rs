@@ -390,8 +390,9 @@ impl Learner {
             Some(init),
             &mut self.replanned,
         )?;
+        // Switch first: if that fails, the learner keeps the plan it is following.
+        self.plan.switch_to(self.replanned.plan(), t, &self.speed_limits)?;
         std::mem::swap(&mut self.levels, &mut self.replanned);
-        self.plan.switch_to(self.levels.plan(), t, &self.speed_limits)?;
         self.replan_pending = self.params.replan_iterations > 0 && !info.converged;
         self.history.plans.push((t, self.levels.plan().to_vec()));
         Ok(info)

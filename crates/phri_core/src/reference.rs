@@ -8,8 +8,10 @@
 //! times its joint velocity limits. [`TimedTrajectory::switch_to`] keeps the reference C¹ instead:
 //! it adds to the new plan an offset e(τ) that starts at the old reference's position and velocity
 //! and decays to zero by the cubic Hermite blend e(τ) = h₀₀(σ)·Δq + h₁₀(σ)·D·Δq̇, σ = τ/D, with
-//! the shortest blend time D that keeps every joint's reference speed within a given limit (checked
-//! on 64 points of the blend). [`TimedTrajectory::set_waypoints`] keeps the original's instant switch.
+//! the shortest blend time D that keeps every joint's reference speed within a given limit, or the
+//! plan's own speed where that is higher, or the speed the joint already had at the switch (checked
+//! wherever the velocity can peak; see `blend_excess`). [`TimedTrajectory::set_waypoints`] keeps
+//! the original's instant switch.
 
 use crate::error::{check_finite, PhriError, Result};
 
@@ -43,6 +45,8 @@ struct Scratch {
     q: Vec<f64>,
     v: Vec<f64>,
     a: Vec<f64>,
+    /// Each joint's reference speed when the blend starts [rad/s].
+    start_speed: Vec<f64>,
 }
 
 /// The decaying offset from the previous plan after [`TimedTrajectory::switch_to`] (see the
@@ -97,7 +101,14 @@ impl TimedTrajectory {
         if !(duration.is_finite() && duration > 0.0 && (segments / duration).is_finite()) {
             return Err(PhriError::invalid("duration", format!("must be a finite time > 0 s, got {duration}")));
         }
-        let scratch = Scratch { q_old: vec![0.0; n], v_old: vec![0.0; n], q: vec![0.0; n], v: vec![0.0; n], a: vec![0.0; n] };
+        let scratch = Scratch {
+            q_old: vec![0.0; n],
+            v_old: vec![0.0; n],
+            q: vec![0.0; n],
+            v: vec![0.0; n],
+            a: vec![0.0; n],
+            start_speed: vec![0.0; n],
+        };
         let mut t = TimedTrajectory {
             tangents: vec![0.0; waypoints.len()],
             waypoints,
@@ -131,8 +142,9 @@ impl TimedTrajectory {
     /// Switches to new `waypoints` at time `t` [s] without a jump: the reference keeps its position
     /// and velocity at `t` and blends into the new plan (module docs) within `speed_limits`
     /// [rad/s] per joint, or at once when `speed_limits` is empty. Where the new plan alone is
-    /// faster than a limit, the blend adds nothing beyond the plan's own speed there. Returns the
-    /// blend time D [s]. Allocates nothing.
+    /// faster than a limit, the blend adds nothing beyond the plan's own speed there, and a joint
+    /// already faster than its limit at `t` is not sped up further. Returns the blend time D [s].
+    /// Allocates nothing.
     pub fn switch_to(&mut self, waypoints: &[f64], t: f64, speed_limits: &[f64]) -> Result<f64> {
         check_finite("t", &[t])?;
         if !speed_limits.is_empty() {
@@ -159,6 +171,7 @@ impl TimedTrajectory {
         for j in 0..self.n {
             self.blend.offset[j] = sc.q_old[j] - sc.q[j];
             self.blend.rate[j] = sc.v_old[j] - sc.v[j];
+            sc.start_speed[j] = sc.v_old[j].abs();
             // The position offset alone moves at most 1.5·|Δq|/D (max |h₀₀'| = 3/2).
             needed = needed.max(1.5 * self.blend.offset[j].abs() / limits[j]);
             largest = largest.max(self.blend.offset[j].abs()).max(self.blend.rate[j].abs() * self.dt());
@@ -169,50 +182,70 @@ impl TimedTrajectory {
             return;
         }
         // Lengthen the blend until the reference keeps to the limits (or to the plan's own speed).
-        // q_old and v_old are free now: they hold the blended reference at each check.
+        // q_old and v_old are free now: they hold the blended reference at each check. Where no
+        // length does (the velocity offset alone, which any blend carries through −1/3 of itself,
+        // can exceed a limit tighter than the plans' speeds), take the one of least excess among
+        // those up to the plan's duration, so that the blend stays finite.
         let mut length = needed.max(1e-3);
+        let (mut best, mut best_excess) = (length, f64::INFINITY);
         for _ in 0..60 {
             self.blend.length = length;
-            if self.blend_keeps_to(limits, sc) {
+            let excess = self.blend_excess(limits, sc);
+            if excess <= 0.0 {
+                return;
+            }
+            if excess < best_excess {
+                (best, best_excess) = (length, excess);
+            }
+            if length > self.duration.max(needed) {
                 break;
             }
             length *= 1.25;
         }
+        self.blend.length = best;
     }
 
-    /// Whether the blended reference keeps to `limits` (or to the plan's own speed) over the
-    /// blend. Within one segment of the plan the reference's velocity is a quadratic in t (the
-    /// plan's, linear or cubic, plus the blend's cubic offset), so beside evenly spaced points it
-    /// is checked where it can peak: at both ends of every segment (one-sided: a piecewise-linear
-    /// plan's velocity jumps at its waypoints) and at each joint's vertex of the quadratic.
-    fn blend_keeps_to(&self, limits: &[f64], sc: &mut Scratch) -> bool {
+    /// How far the blended reference exceeds `limits` over the blend, relative to them (≤ 0: it
+    /// keeps to them), allowing where the plan alone is faster the plan's speed, and where the
+    /// reference already was faster when the blend started that speed (a blend never speeds a
+    /// joint up beyond the faster of the three).
+    /// Between the plan's waypoints, and before 0 and after T, the reference's velocity is a
+    /// quadratic in t (the plan's, linear or cubic, plus the blend's cubic offset), so beside
+    /// evenly spaced points it is checked where it can peak: at both ends of every such interval
+    /// (one-sided: a piecewise-linear plan's velocity jumps at its waypoints) and at each joint's
+    /// vertex of the quadratic.
+    fn blend_excess(&self, limits: &[f64], sc: &mut Scratch) -> f64 {
         let (start, end) = (self.blend.start, self.blend.start + self.blend.length);
+        let mut excess = f64::NEG_INFINITY;
         for k in 1..=BLEND_CHECKS {
             let tk = start + self.blend.length * k as f64 / (BLEND_CHECKS + 1) as f64;
-            if !self.blend_keeps_to_at(None, tk, None, limits, sc) {
-                return false;
-            }
+            excess = excess.max(self.excess_at(None, tk, None, limits, sc));
         }
         let dt = self.dt();
-        let first = self.segment_at(start);
-        let last = self.segment_at(end);
-        for i in first..=last {
-            let a = (i as f64 * dt).max(start);
-            let b = ((i + 1) as f64 * dt).min(end).min(self.duration);
+        let mut a = start;
+        while a < end {
+            // The interval from `a` to the next waypoint time, 0, T or the blend's end, and the
+            // plan's segment there (None where the plan holds its start or goal).
+            let (b, segment) = if a < 0.0 {
+                (end.min(0.0), None)
+            } else if a >= self.duration {
+                (end, None)
+            } else {
+                let i = self.segment_at(a);
+                (end.min((i + 1) as f64 * dt).min(self.duration), Some(i))
+            };
             if !(b > a) {
-                continue;
+                break;
             }
             let mid = 0.5 * (a + b);
             for tk in [a, b] {
-                if !self.blend_keeps_to_at(Some(i), tk, None, limits, sc) {
-                    return false;
-                }
+                excess = excess.max(self.excess_at(segment, tk, None, limits, sc));
             }
             // The vertex of each joint's velocity v(τ) = c0 + c1·τ + c2·τ², τ = (t − mid)/(b − a),
             // from its values at τ = −½, 0, ½.
             for j in 0..self.n {
                 let v = |tk: f64, sc: &mut Scratch| {
-                    self.sample_plan_in(i, tk, &mut sc.q, &mut sc.v, &mut sc.a);
+                    self.sample_plan_on(segment, tk, sc);
                     self.blend.add(tk, &mut sc.q, &mut sc.v, &mut sc.a);
                     sc.v[j]
                 };
@@ -221,29 +254,39 @@ impl TimedTrajectory {
                 let c1 = vb - va;
                 if c2 != 0.0 {
                     let tau = -c1 / (2.0 * c2);
-                    if tau.abs() < 0.5 && !self.blend_keeps_to_at(Some(i), mid + tau * (b - a), Some(j), limits, sc) {
-                        return false;
+                    if tau.abs() < 0.5 {
+                        excess = excess.max(self.excess_at(segment, mid + tau * (b - a), Some(j), limits, sc));
                     }
                 }
             }
+            a = b;
         }
-        true
+        excess
     }
 
-    /// The check of [`TimedTrajectory::blend_keeps_to`] at time `t`, on the plan's segment
-    /// `segment` (or wherever t falls), for joint `only` (or every joint).
-    fn blend_keeps_to_at(&self, segment: Option<usize>, t: f64, only: Option<usize>, limits: &[f64], sc: &mut Scratch) -> bool {
+    /// The plan at `t` on `segment`, or wherever t falls (into `sc.q`, `sc.v`, `sc.a`).
+    fn sample_plan_on(&self, segment: Option<usize>, t: f64, sc: &mut Scratch) {
         match segment {
             Some(i) => self.sample_plan_in(i, t, &mut sc.q, &mut sc.v, &mut sc.a),
             None => self.sample_plan(t, &mut sc.q, &mut sc.v, &mut sc.a),
         }
+    }
+
+    /// The check of [`TimedTrajectory::blend_excess`] at time `t`, on the plan's segment `segment`
+    /// (or wherever t falls), for joint `only` (or every joint): the largest speed beyond what is
+    /// allowed there, relative to it (≤ 0 when within).
+    fn excess_at(&self, segment: Option<usize>, t: f64, only: Option<usize>, limits: &[f64], sc: &mut Scratch) -> f64 {
+        self.sample_plan_on(segment, t, sc);
         sc.q_old.copy_from_slice(&sc.q);
         sc.v_old.copy_from_slice(&sc.v);
         self.blend.add(t, &mut sc.q_old, &mut sc.v_old, &mut sc.a);
-        let ok = |j: usize| sc.v_old[j].abs() <= limits[j].max(sc.v[j].abs()) * (1.0 + 1e-9);
+        let excess = |j: usize| {
+            let allowed = limits[j].max(sc.v[j].abs()).max(sc.start_speed[j]);
+            sc.v_old[j].abs() / allowed - 1.0 - 1e-9
+        };
         match only {
-            Some(j) => ok(j),
-            None => (0..self.n).all(ok),
+            Some(j) => excess(j),
+            None => (0..self.n).map(excess).fold(f64::NEG_INFINITY, f64::max),
         }
     }
 

@@ -253,10 +253,10 @@ enum Derivatives {
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlanLevels {
     levels: Vec<Vec<f64>>,
-    /// Where each level's solver left off, and the weights it solved for: a solve for the same
-    /// weights goes on from there (a replan cut short by an iteration cap).
+    /// Where each level's solver left off, and the problem it solved (weights, start, goal): a
+    /// solve of the same problem goes on from there (a replan cut short by an iteration cap).
     states: Vec<SolverState>,
-    weights: Vec<f64>,
+    problem: Vec<f64>,
     dof: usize,
 }
 
@@ -283,7 +283,7 @@ impl PlanLevels {
 
     /// Level `k`, to write (e.g. plans stored earlier); the solvers' states are forgotten.
     pub fn level_mut(&mut self, k: usize) -> &mut [f64] {
-        self.weights.clear();
+        self.problem.clear();
         &mut self.levels[k]
     }
 }
@@ -341,6 +341,8 @@ pub struct TrajectoryOptimizer {
     /// The solver state the next Newton solve resumes from (set per solve), and the last one's.
     resume: Option<SolverState>,
     state: SolverState,
+    /// Whether the coarse levels of the last solve all converged (true without any).
+    coarse_converged: bool,
 }
 
 impl TrajectoryOptimizer {
@@ -395,6 +397,7 @@ impl TrajectoryOptimizer {
             exact_curvature: false,
             resume: None,
             state: SolverState::default(),
+            coarse_converged: true,
             lower: model.lower_limits(),
             upper: model.upper_limits(),
             data: model.data(),
@@ -501,6 +504,9 @@ impl TrajectoryOptimizer {
         };
         let with_hessian = level == Derivatives::Hessian;
         features.set_kinematic_curvature(self.exact_curvature);
+        if with_hessian {
+            model.exact = self.exact_curvature;
+        }
         let mut cost = features.weighted_cost_unchecked(
             traj,
             self.waypoints,
@@ -681,7 +687,7 @@ impl TrajectoryOptimizer {
             levels.push(vec![0.0; c.optimizer.waypoints * self.dof]);
             next = c.optimizer.coarse.as_deref();
         }
-        PlanLevels { states: vec![SolverState::default(); levels.len()], levels, weights: Vec::new(), dof: self.dof }
+        PlanLevels { states: vec![SolverState::default(); levels.len()], levels, problem: Vec::new(), dof: self.dof }
     }
 
     /// As [`TrajectoryOptimizer::solve`], but warm-starting from a plan *and* the coarse plans it
@@ -707,10 +713,16 @@ impl TrajectoryOptimizer {
                 check_finite("init", level)?;
             }
         }
-        // The same weights: the solve goes on where the one that wrote `init` left off.
-        let resume = init.is_some_and(|l| l.weights == weights);
+        // The same problem (weights, start, goal): the solve goes on where the one that wrote
+        // `init` left off.
+        let resume = init.is_some_and(|l| {
+            l.problem.len() == weights.len() + 2 * self.dof && {
+                let (w, ends) = l.problem.split_at(weights.len());
+                w == weights && ends[..self.dof] == *start && ends[self.dof..] == *goal
+            }
+        });
         let from = init.map(|l| {
-            let states = if resume { Some(&l.states[..]) } else { None };
+            let states = if resume { Some(&l.states[1..]) } else { None };
             (&l.levels[0][..], Start::Levels { plans: &l.levels[1..], states })
         });
         self.resume = if resume { init.map(|l| l.states[0]) } else { None };
@@ -718,25 +730,35 @@ impl TrajectoryOptimizer {
         let info = self.solve_checked(features, weights, start, goal, from, Some(below))?;
         out.levels[0].copy_from_slice(&self.traj);
         out.states[0] = self.state;
-        out.weights.clear();
-        out.weights.extend_from_slice(weights);
-        Ok(info)
+        out.problem.clear();
+        out.problem.extend_from_slice(weights);
+        out.problem.extend_from_slice(start);
+        out.problem.extend_from_slice(goal);
+        // A coarse level cut short by a cap still has work to hand down: a later solve_levels for
+        // the same problem goes on with it, so the solve is not done.
+        Ok(TrajoptInfo { converged: info.converged && self.coarse_converged, ..info })
     }
 
     fn check_levels(&self, arg: &str, levels: &PlanLevels) -> Result<()> {
-        let want = self.plan_levels();
-        let shapes = |l: &PlanLevels| l.levels.iter().map(|v| v.len() / self.dof.max(1)).collect::<Vec<_>>();
-        if levels.dof != self.dof
-            || shapes(levels) != shapes(&want)
-            || levels.levels.iter().zip(&want.levels).any(|(a, b)| a.len() != b.len())
-        {
-            return Err(PhriError::shape(
-                arg,
-                format!("plan levels of {:?} waypoints × {}", shapes(&want), self.dof),
-                format!("{:?} × {}", shapes(levels), levels.dof),
-            ));
+        // Walk the coarse chain alongside the given levels (no allocation: this runs every tick of
+        // a budgeted replan).
+        let mut fits = levels.dof == self.dof && !levels.levels.is_empty();
+        let (mut optimizer, mut k) = (Some(self), 0);
+        while let Some(o) = optimizer {
+            fits &= levels.levels.get(k).is_some_and(|l| l.len() == o.waypoints * o.dof);
+            optimizer = o.coarse.as_deref().map(|c| &c.optimizer);
+            k += 1;
         }
-        Ok(())
+        if fits && levels.levels.len() == k && levels.states.len() == k {
+            return Ok(());
+        }
+        let want = self.plan_levels();
+        let shapes = |l: &PlanLevels| l.levels.iter().map(|v| v.len() / l.dof.max(1)).collect::<Vec<_>>();
+        Err(PhriError::shape(
+            arg,
+            format!("plan levels of {:?} waypoints × {}", shapes(&want), self.dof),
+            format!("{:?} × {}", shapes(levels), levels.dof),
+        ))
     }
 
     /// The common part of the solves: checks the problem, sets `traj` (from `init`, or the
@@ -821,8 +843,8 @@ impl TrajectoryOptimizer {
             TrajoptMethod::Newton => self.run_newton(features, weights, deadline),
             TrajoptMethod::Lbfgs => self.run_lbfgs(features, weights, deadline),
         };
-        // A coarse level cut short by a cap still has work to hand down: not converged.
-        (iterations, coarse_iterations, evaluations, cost, penalty, converged && coarse_converged)
+        self.coarse_converged = coarse_converged;
+        (iterations, coarse_iterations, evaluations, cost, penalty, converged)
     }
 
     /// The multiresolution start (module docs): solves the coarse level — from its straight line
@@ -870,7 +892,7 @@ impl TrajectoryOptimizer {
                 Start::Line
             }
         };
-        let (iterations, coarse_iterations, _, _, _, converged) = match levels {
+        let (iterations, coarse_iterations, _, _, _, level_converged) = match levels {
             Some(out) => {
                 let (plan, plans) = out.plans.split_first_mut().expect("one plan per level");
                 let (state, states) = out.states.split_first_mut().expect("one state per level");
@@ -893,6 +915,7 @@ impl TrajectoryOptimizer {
                 self.traj[k] = q.clamp(self.lower[j], self.upper[j]);
             }
         }
+        let converged = level_converged && c.optimizer.coarse_converged;
         self.coarse = Some(coarse);
         (iterations + coarse_iterations, converged)
     }
@@ -1102,8 +1125,9 @@ impl TrajectoryOptimizer {
         }
     }
 
-    /// Factors `system` + λI, from block `from` on (earlier blocks kept from the last factorisation
-    /// with the same λ), raising λ until it is positive definite. False if no λ ≤ `lambda_max` is.
+    /// Factors `system` + λ·(I + κT) ([`damping`]), from block `from` on (earlier blocks kept from
+    /// the last factorisation with the same λ), raising λ until it is positive definite. False if
+    /// no λ ≤ `lambda_max` is.
     fn factor_system(&mut self, lambda: &mut f64, from: usize, scale: f64, lambda_max: f64) -> bool {
         let mut from = from;
         while *lambda <= lambda_max {
@@ -1312,7 +1336,7 @@ impl TrajectoryOptimizer {
                 // Armijo along the projected path: a fraction of the decrease the gradient predicts
                 // for the move actually made (shorter than α·d where the box cuts it).
                 let moved: f64 = (lo..hi).map(|k| self.grad[k] * (self.trial[k] - self.traj[k])).sum();
-                if new_cost.is_finite() && new_cost <= cost + 1e-4 * moved {
+                if new_cost.is_finite() && new_cost <= cost + 1e-4 * moved.min(0.0) {
                     accepted = true;
                     break;
                 }
@@ -1378,11 +1402,11 @@ impl TrajectoryOptimizer {
         any
     }
 
-    /// With [`KinematicCurvature::Settled`] and the kinematic curvature on: turns it off for the
-    /// rest of the solve (`fell_back`) and rebuilds the current model without it. Returns whether
-    /// it did.
+    /// With [`KinematicCurvature::Settled`] and a current model that has the kinematic curvature
+    /// (the one whose step just failed): turns it off for the rest of the solve (`fell_back`) and
+    /// rebuilds the current model without it. Returns whether it did.
     fn drop_settled_curvature(&mut self, features: &mut FeatureSet, weights: &[f64], fell_back: &mut bool) -> bool {
-        if !(self.exact_curvature && self.params.kinematic_curvature == KinematicCurvature::Settled) {
+        if !(self.model.exact && self.params.kinematic_curvature == KinematicCurvature::Settled) {
             return false;
         }
         self.exact_curvature = false;
@@ -1602,11 +1626,18 @@ struct Model {
     /// Kinked terms kept out of `hess` and modelled piecewise: every clearance (on or off) and the
     /// features' inactive hinge samples near their kink.
     pieces: Pieces,
+    /// `hess` includes the kinematics' second derivatives ([`KinematicCurvature`]).
+    exact: bool,
 }
 
 impl Model {
     fn new(n: usize, waypoints: usize) -> Self {
-        Model { hess: BlockTridiagonal::new(n, waypoints), pen_grad: vec![0.0; waypoints * n], pieces: Pieces::new(n) }
+        Model {
+            hess: BlockTridiagonal::new(n, waypoints),
+            pen_grad: vec![0.0; waypoints * n],
+            pieces: Pieces::new(n),
+            exact: false,
+        }
     }
 }
 

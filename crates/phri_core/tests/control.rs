@@ -391,3 +391,54 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn a_blend_past_the_plans_end_keeps_to_the_speed_limits_and_any_blend_is_finite() {
+    const N: usize = 7;
+    // A plan B off A by an offset that grows to the goal, so that a switch late in the task blends
+    // on past T, where the plan holds still. Every switch is checked densely: the reference keeps
+    // to the limit, or the plan's speed, or the speed the joint had at the switch.
+    let a = slow_plan(N, 0.0);
+    let b: Vec<f64> = a.iter().enumerate().map(|(k, v)| v + 0.02 * (k / N) as f64 / 30.0 * ((k % N) + 1) as f64 / 7.0).collect();
+    let limit = 0.05;
+    let mut past_t = 0;
+    for t0 in [13.0, 14.0, 14.5, 14.7, 14.9] {
+        let mut traj = TimedTrajectory::new(a.clone(), N, 15.0, Interpolation::Linear).unwrap();
+        let (mut q, mut v0, mut acc) = ([0.0; N], [0.0; N], [0.0; N]);
+        traj.sample(t0, &mut q, &mut v0, &mut acc);
+        let length = traj.switch_to(&b, t0, &[limit; N]).unwrap();
+        assert!(length > 0.0 && length < 20.0, "t0 = {t0}: blend of {length} s");
+        past_t += usize::from(traj.blend_end() > 15.0);
+        let (mut v, mut vp) = ([0.0; N], [0.0; N]);
+        for i in 0..=20_000 {
+            let t = t0 + (length * 1.01) * i as f64 / 20_000.0;
+            traj.sample(t, &mut q, &mut v, &mut acc);
+            traj.sample_plan(t, &mut q, &mut vp, &mut acc);
+            for j in 0..N {
+                let allowed = limit.max(vp[j].abs()).max(v0[j].abs());
+                assert!(v[j].abs() <= allowed * (1.0 + 1e-6) + 1e-12, "t0 = {t0}, t = {t}, joint {j}: {} > {allowed}", v[j]);
+            }
+        }
+    }
+    assert!(past_t >= 2, "only {past_t} blends ran past T: the test needs them");
+    // A limit tighter than the plans' own speeds with the plans' velocities apart at the switch:
+    // no blend keeps to it after T (the velocity offset alone overshoots by a third of itself), so
+    // the least excessive blend within the task's duration is taken, never an endless one.
+    let c = slow_plan(N, 0.3);
+    let mut traj = TimedTrajectory::new(a.clone(), N, 15.0, Interpolation::Cubic).unwrap();
+    let (mut qa, mut qc, mut v, mut acc) = ([0.0; N], [0.0; N], [0.0; N], [0.0; N]);
+    traj.sample(13.0, &mut qa, &mut v, &mut acc);
+    TimedTrajectory::new(c.clone(), N, 15.0, Interpolation::Cubic).unwrap().sample(13.0, &mut qc, &mut v, &mut acc);
+    // The position offset alone needs 1.5·|Δq|/limit.
+    let needed = qa.iter().zip(&qc).map(|(x, y)| 1.5 * (x - y).abs() / 0.001).fold(0.0, f64::max);
+    let length = traj.switch_to(&c, 13.0, &[0.001; N]).unwrap();
+    assert!(
+        length >= needed * (1.0 - 1e-9) && length <= 1.25 * needed.max(15.0) * (1.0 + 1e-9),
+        "blend of {length} s, {needed} s needed"
+    );
+    let mut q = [0.0; N];
+    for i in 0..=2_000 {
+        traj.sample(13.0 + 2.0 * length * i as f64 / 2_000.0, &mut q, &mut v, &mut acc);
+        assert!(v.iter().all(|x| x.is_finite() && x.abs() < 1.0));
+    }
+}

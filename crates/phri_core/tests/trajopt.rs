@@ -294,3 +294,29 @@ fn plans_pressed_against_the_joint_limits_converge_whole_or_a_few_iterations_at_
     };
     assert!((last.cost - info.cost).abs() <= 1e-8 * info.cost.abs(), "{last:?} vs {info:?}");
 }
+
+#[test]
+fn only_the_same_problem_resumes_and_a_cold_solve_reports_its_own_convergence() {
+    let (start, goal) = (deg(PICK_SHELF), deg(PLACE_LOWER));
+    let other_goal = deg(PLACE_HIGHER);
+    let (mut fs, mut opt) = study_setup("coffee", 31, TrajoptMethod::Newton);
+    let mut capped = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { max_iterations: 2, ..opt.params().clone() }).unwrap();
+    let mut levels = opt.plan_levels();
+    opt.solve_levels(&mut fs, &[1.0, 1.0], &start, &goal, None, &mut levels).unwrap(); // ends settled
+                                                                                       // The same plans without the solver state (writing a level forgets it): for another goal both
+                                                                                       // start afresh, so they give the same plan bit for bit.
+    let mut forgotten = levels.clone();
+    let first = forgotten.level(0)[0];
+    forgotten.level_mut(0)[0] = first;
+    let (mut a, mut b) = (opt.plan_levels(), opt.plan_levels());
+    capped.solve_levels(&mut fs, &[1.0, 1.0], &start, &other_goal, Some(&levels), &mut a).unwrap();
+    capped.solve_levels(&mut fs, &[1.0, 1.0], &start, &other_goal, Some(&forgotten), &mut b).unwrap();
+    assert_eq!(a.plan(), b.plan(), "another goal must not resume the solver");
+    // A cold solve whose coarse level stops at the cap but whose plan converges says converged.
+    let mut five = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { max_iterations: 5, ..opt.params().clone() }).unwrap();
+    let mut plan = vec![0.0; 31 * 7];
+    let info = five.solve(&mut fs, &[1.0, 1.0], &start, &goal, None, &mut plan).unwrap();
+    let full = opt.solve(&mut fs, &[1.0, 1.0], &start, &goal, None, &mut plan).unwrap();
+    assert!(info.converged && info.iterations <= 5, "{info:?}");
+    assert!((info.cost - full.cost).abs() <= 1e-8 * full.cost, "{info:?} vs {full:?}");
+}

@@ -224,9 +224,9 @@ impl PyTrajectoryOptimizer {
     /// As `solve`, but warm-started from `init`, a `PlanLevels` that an earlier `solve_levels` of
     /// this optimiser returned: a plan and the coarse plans it came from. The coarse level replans
     /// from its own plan and hands its change down, so a large change of the weights is mostly
-    /// worked out there (the learner replans this way); for the same weights as `init` the solve
-    /// goes on where that one stopped (e.g. after `max_iterations`). `init=None` plans from the
-    /// straight line. Returns (PlanLevels, TrajoptInfo).
+    /// worked out there (the learner replans this way); for the same weights, start and goal as
+    /// `init` the solve goes on where that one stopped (e.g. after `max_iterations`).
+    /// `init=None` plans from the straight line. Returns (PlanLevels, TrajoptInfo).
     #[pyo3(signature = (weights, start, goal, init = None))]
     fn solve_levels<'py>(
         &mut self,

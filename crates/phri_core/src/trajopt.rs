@@ -694,8 +694,11 @@ impl TrajectoryOptimizer {
     /// came from (`init`, as an earlier `solve_levels` wrote them), and writing all levels to
     /// `out` (from [`TrajectoryOptimizer::plan_levels`]). Each coarse level replans from its own
     /// earlier plan and the finer level adds the interpolated change, so a large change of the
-    /// weights is mostly worked out on the coarse levels (module docs). `init = None` plans from
-    /// the straight line.
+    /// weights is mostly worked out on the coarse levels (module docs). For the same weights,
+    /// start and goal as `init`, every level goes on where that solve stopped (its damping and
+    /// curvature mode: a replan cut short by `max_iterations` continues rather than restarts), so
+    /// the result depends on `init`'s plans and on that; a level written with
+    /// [`PlanLevels::level_mut`] starts afresh. `init = None` plans from the straight line.
     #[allow(clippy::too_many_arguments)]
     pub fn solve_levels(
         &mut self,

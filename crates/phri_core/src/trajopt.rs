@@ -110,7 +110,7 @@ pub enum KinematicCurvature {
     /// Gauss–Newton until the model's pieces agree with its step (the active set has settled) and
     /// it predicts little more decrease, exact from then on, for a quadratic end (measured on the
     /// study's tasks from the levels' warm starts: coffee 4 → 2–3 fine iterations, table 9–14 →
-    /// 4–10; see [`SETTLED_DECREASE`]).
+    /// 4–10; the switch comes once a step predicts less than 10⁻³ of the cost).
     #[default]
     Settled,
     /// Include them from the start.

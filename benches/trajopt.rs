@@ -8,12 +8,16 @@
 //!   update step later (0 → 0.3 × the true weight);
 //! - `Learner::observe` with an interaction (deform + update + warm replan), N = 31: ≤ 1 ms;
 //! - cold replan from the straight line for the true weights, N = 31: ≤ 5 ms;
-//! - the same for N = 100: ≤ 4 × the N = 31 time.
+//! - the same for N = 100: ≤ 4 × the N = 31 time. The true weights are the study's for 31 waypoints
+//!   (Φ sums over waypoints); on 100 the same task takes them rescaled by
+//!   `FeatureSet::rescale_weights` (task weight × (30/99)²), and plans the same path (within
+//!   0.02 rad, tests/test_trajopt.py). The tail rows also time the unscaled weights, which pose
+//!   another trade-off on 100 waypoints (the task weighed 11 times more against efficiency).
 //!
 //! Criterion gives medians (of batch averages). A single repeated problem has no tail apart from
 //! the machine, so after the criterion groups this binary times individual calls with `Instant` over
 //! *varied* problems and prints median, p99 and max per case: cold solves repeated per task and N
-//! (and at N = 100 with the task weight scaled by (30/99)², the N = 31 problem on 100 waypoints);
+//! (and at N = 100 with the study's weights unscaled);
 //! warm replans from the converged plans for task weights {0, 0.2, 0.5} × true to that weight plus
 //! {0.1, 0.3} × true and to the true weight (the learner's first push on the keep-out tasks jumps
 //! straight to it), through the coarse levels and, for comparison, from the plan alone; and every
@@ -65,6 +69,11 @@ fn solve_levels(
     opt.solve_levels(fs, &[1.0, w], &task.start, &task.goal, init, out).expect("valid problem")
 }
 
+/// The task weight that poses on `n` waypoints the trade-off the true weight poses on the study's 31.
+fn task_weight(fs: &FeatureSet, task: &StudyTask, n: usize) -> f64 {
+    fs.rescale_weights(&[1.0, task.true_weight], 31, n).expect("two weights")[1]
+}
+
 fn cold(c: &mut Criterion) {
     let model = Arc::new(jaco2());
     let mut group = c.benchmark_group("trajopt_cold");
@@ -73,11 +82,12 @@ fn cold(c: &mut Criterion) {
         group.throughput(Throughput::Elements(n as u64));
         for task in study_tasks() {
             let (mut fs, mut opt) = study_planner(&model, &task, n);
+            let w = task_weight(&fs, &task, n);
             let mut plan = vec![0.0; n * NQ];
-            let info = solve(&mut fs, &mut opt, &task, task.true_weight, None, &mut plan);
+            let info = solve(&mut fs, &mut opt, &task, w, None, &mut plan);
             eprintln!("cold {:>6} N={n:<3} {info:?}", task.name);
             group.bench_function(BenchmarkId::new(task.name, n), |b| {
-                b.iter(|| solve(&mut fs, &mut opt, &task, black_box(task.true_weight), None, &mut plan))
+                b.iter(|| solve(&mut fs, &mut opt, &task, black_box(w), None, &mut plan))
             });
         }
     }
@@ -151,15 +161,20 @@ fn tails(reps: usize) {
     println!("individual calls with Instant over varied problems [ms] (the max also measures the machine)");
     println!("  {:<26} {:>6} {:>9} {:>9} {:>9}", "case", "calls", "median", "p99", "max");
     let mut cold31 = Vec::new();
-    for n in [31, 100] {
+    // N = 100 with the weights rescaled (the task's plan on 100 waypoints), then with the study's
+    // weights for 31 unscaled: they weigh the task (99/30)² ≈ 11 times more against efficiency, a
+    // harder problem (on the table task the plan races down at the joints' speed limits and presses
+    // 15 times harder into the clearance).
+    for (n, rescaled) in [(31, true), (100, true), (100, false)] {
         for task in study_tasks() {
             let (mut fs, mut opt) = study_planner(&model, &task, n);
+            let w = if rescaled { task_weight(&fs, &task, n) } else { task.true_weight };
             let mut plan = vec![0.0; n * NQ];
             let mut samples = Vec::new();
             let mut info = None;
             for _ in 0..reps.max(1) * 5 {
                 let t0 = Instant::now();
-                info = Some(solve(&mut fs, &mut opt, &task, task.true_weight, None, &mut plan));
+                info = Some(solve(&mut fs, &mut opt, &task, w, None, &mut plan));
                 samples.push(t0.elapsed());
             }
             if n == 31 {
@@ -167,28 +182,12 @@ fn tails(reps: usize) {
             }
             let info = info.expect("solved");
             let extra = format!("{} + {} coarse iterations", info.iterations, info.coarse_iterations);
-            row(&format!("cold {} N={n}", task.name), &mut samples, &extra);
+            let label = if rescaled { format!("cold {} N={n}", task.name) } else { format!("cold {} N={n} unscaled", task.name) };
+            row(&label, &mut samples, &extra);
         }
-    }
-    row("cold all tasks N=31", &mut cold31, "");
-    // The task features are sums over waypoints and efficiency a sum of squared steps, so on 100
-    // waypoints the study's weights weigh the task (99/30)² ≈ 11 times more against efficiency than
-    // on 31: a harder problem (on the table task the plan presses 15 times harder into the
-    // clearance). Scaling the task weight by (30/99)² poses the N = 31 problem on 100 waypoints.
-    let same = (30.0f64 / 99.0).powi(2);
-    for task in study_tasks() {
-        let (mut fs, mut opt) = study_planner(&model, &task, 100);
-        let mut plan = vec![0.0; 100 * NQ];
-        let mut samples = Vec::new();
-        let mut info = None;
-        for _ in 0..reps.max(1) * 5 {
-            let t0 = Instant::now();
-            info = Some(solve(&mut fs, &mut opt, &task, same * task.true_weight, None, &mut plan));
-            samples.push(t0.elapsed());
+        if n == 31 {
+            row("cold all tasks N=31", &mut cold31, "");
         }
-        let info = info.expect("solved");
-        let extra = format!("{} + {} coarse iterations, the N=31 problem", info.iterations, info.coarse_iterations);
-        row(&format!("cold {} N=100 same", task.name), &mut samples, &extra);
     }
     let n = 31;
     for through_levels in [true, false] {

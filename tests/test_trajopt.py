@@ -298,3 +298,47 @@ def test_warm_starts_through_the_coarse_levels() -> None:
         )
     with pytest.raises(ex.InvalidParameterError, match="k must be below 2"):
         levels.level(2)
+
+
+def test_rescale_weights_keeps_the_trade_off_on_another_grid(robot) -> None:
+    features = phri.Features(robot, ["efficiency", "table", "laptop"])
+    w = np.array([1.0, 2.0, 10.0])
+    # Efficiency (a sum of squared steps, e = −1) keeps its weight; per-waypoint features (e = 1)
+    # scale with the square of the segment-length ratio.
+    np.testing.assert_allclose(
+        features.rescale_weights(w, 31, 100), w * [1.0, (30 / 99) ** 2, (30 / 99) ** 2]
+    )
+    np.testing.assert_allclose(
+        features.rescale_weights(w, 100, 31), w * [1.0, (99 / 30) ** 2, (99 / 30) ** 2]
+    )
+    np.testing.assert_array_equal(features.rescale_weights(w, 31, 31), w)
+    with pytest.raises(ex.ShapeError, match="weights"):
+        features.rescale_weights(w[:2], 31, 100)
+    for bad in (1, 0, -3):
+        with pytest.raises(ex.InvalidParameterError, match="from_waypoints"):
+            features.rescale_weights(w, bad, 100)
+        with pytest.raises(ex.InvalidParameterError, match="to_waypoints"):
+            features.rescale_weights(w, 31, bad)
+
+
+def _at(plan: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """The piecewise-linear path through `plan`'s waypoints at normalised times in [0, 1]."""
+    grid = np.linspace(0.0, 1.0, len(plan))
+    return np.stack([np.interp(times, grid, plan[:, j]) for j in range(plan.shape[1])], axis=1)
+
+
+@pytest.mark.parametrize("name", TASKS)
+def test_rescaled_weights_plan_the_same_path_on_100_waypoints(name, solved, robot) -> None:
+    problem, _, plan31, *_ = solved[name]
+    fine = peers.study_problem(name, waypoints=100)
+    opt = peers.phri_optimizer(fine)
+    rescaled = phri.Features(robot, list(problem.names)).rescale_weights(problem.weights, 31, 100)
+    plan100, info = opt.solve(rescaled, fine.start, fine.goal)
+    assert info.converged, info
+    times = np.linspace(0.0, 1.0, 601)
+    gap = np.abs(_at(plan100, times) - _at(plan31, times)).max()
+    assert gap <= 0.022, f"{name}: the 100-waypoint plan strays {gap:.3f} rad from the 31-waypoint one"
+    if name == "table":
+        # Unscaled, the same weights pose another trade-off: a visibly different plan.
+        other, _ = opt.solve(problem.weights, fine.start, fine.goal)
+        assert np.abs(_at(other, times) - _at(plan31, times)).max() > 0.1

@@ -1590,7 +1590,7 @@ impl Coarse {
         coarse_params.relative_tolerance = coarse_params.relative_tolerance.max(COARSE_TOLERANCE);
         coarse_params.gradient_tolerance *= ratio;
         let optimizer = TrajectoryOptimizer::new(features, m, coarse_params)?;
-        let weight_scale = features.resolution_exponents().iter().map(|&e| ratio.powi(1 + e)).collect();
+        let weight_scale = features.resolution_scales(ratio).collect();
         let n = features.model().nq();
         Ok(Some(Box::new(Coarse {
             optimizer,

@@ -337,3 +337,38 @@ fn a_feature_written_outside_the_crate_is_counted_differentiated_and_optimised()
     assert!(info.converged, "{info:?}");
     assert!(pw[1] < po[1] - 1e-3, "the custom feature did not drop: {} vs {}", pw[1], po[1]);
 }
+
+#[test]
+fn rescaled_weights_cost_a_path_the_same_on_any_grid() {
+    // For a fixed smooth path, Φ_efficiency ∝ 1/S and the per-waypoint features ∝ S (S segments),
+    // so with rescaled weights w'·Φ(S₂) = (S₁/S₂)·w·Φ(S₁): the same objective up to a factor,
+    // hence the same optimum, on any grid.
+    let mut fs = feature_set(&["efficiency", "table", "coffee", "laptop"]);
+    let a = deg([210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8]);
+    let b = deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]);
+    let w = [1.0, 0.7, 0.4, 2.0];
+    let cost = |fs: &mut FeatureSet, weights: &[f64], n: usize| {
+        let mut phi = vec![0.0; 4];
+        fs.phi(&trajectory(&a, &b, n, 0.3), &mut phi).unwrap();
+        phi.iter().zip(weights).map(|(p, w)| p * w).sum::<f64>()
+    };
+    let coarse = cost(&mut fs, &w, 31);
+    let rescaled = fs.rescale_weights(&w, 31, 301).unwrap();
+    assert_eq!(rescaled[0], w[0], "efficiency keeps its weight");
+    let ratio = 30.0 / 300.0;
+    for k in 1..4 {
+        assert!((rescaled[k] - w[k] * ratio * ratio).abs() < 1e-15, "{rescaled:?}");
+    }
+    let fine = cost(&mut fs, &rescaled, 301);
+    assert!((fine / ratio - coarse).abs() < 0.02 * coarse, "{} vs {coarse}", fine / ratio);
+    // Unscaled, the same weights price the path differently relative to efficiency.
+    let unscaled = cost(&mut fs, &w, 301);
+    assert!((unscaled / ratio - coarse).abs() > 10.0 * coarse);
+    assert_eq!(fs.rescale_weights(&w, 31, 31).unwrap(), w.to_vec());
+    let err = fs.rescale_weights(&w[..3], 31, 100).unwrap_err().to_string();
+    assert!(err.starts_with("weights must have shape (4,)"), "{err}");
+    for (from, to, arg) in [(1, 100, "from_waypoints"), (31, 0, "to_waypoints")] {
+        let err = fs.rescale_weights(&w, from, to).unwrap_err().to_string();
+        assert!(err.starts_with(arg), "{err}");
+    }
+}

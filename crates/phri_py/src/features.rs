@@ -94,6 +94,26 @@ impl PyFeatures {
         PyArray1::from_vec(py, self.set.ranges())
     }
 
+    /// The weights (K,) that pose on a path of `to_waypoints` waypoints the trade-off `weights` pose
+    /// on `from_waypoints`: each w_k times r^(1+e_k), r = (from − 1)/(to − 1), e_k = −1 for
+    /// efficiency (a sum of squared steps) and 1 for the per-waypoint features. Φ sums over
+    /// waypoints, so weights learnt on 31 waypoints weigh the task 11 times more on 100 unless
+    /// rescaled. The optimiser's clearance penalty is not a feature and is not rescaled.
+    fn rescale_weights<'py>(
+        &self,
+        py: Python<'py>,
+        weights: ArrayIn<'py>,
+        from_waypoints: i64,
+        to_waypoints: i64,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let count = |arg: &str, n: i64| {
+            usize::try_from(n).map_err(|_| error(Kind::InvalidParameter, format!("{arg} must be >= 2, got {n}")))
+        };
+        let (from, to) = (count("from_waypoints", from_waypoints)?, count("to_waypoints", to_waypoints)?);
+        let weights = vector("weights", &weights, self.set.len())?;
+        Ok(PyArray1::from_vec(py, self.set.rescale_weights(&weights, from, to).py_err()?))
+    }
+
     /// Position of feature `name` in `names`.
     fn index(&self, name: &str) -> PyResult<usize> {
         self.set.index_of(name).py_err()

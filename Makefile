@@ -6,7 +6,7 @@ DEPS   := $(VENV)/.deps-installed
 BUILT  := $(VENV)/.ext-built
 CARGO_SOURCES := $(shell find crates -name '*.rs' -o -name Cargo.toml) Cargo.toml
 
-.PHONY: help dev demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-python bench-episode clean
+.PHONY: help dev demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-trajopt-work bench-python bench-episode clean
 
 help:  ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-20s %s\n", $$1, $$2}'
@@ -56,6 +56,9 @@ bench-trajopt-peers: $(BUILT)  ## Time phri's trajectory optimiser against scipy
 	$(PIP) install --quiet "pin>=3" "scipy>=1.11"
 	$(PIP) install --quiet drake || echo "drake did not install here: its rows are skipped"
 	$(PY) benches/trajopt_peers.py
+
+bench-trajopt-work: $(DEPS)  ## Instructions per cold plan, N = 100 against N = 31 (callgrind; needs valgrind)
+	$(PY) benches/trajopt_work.py
 
 bench-python: $(BUILT)  ## Time the per-tick calls of a 1 kHz loop written in Python
 	$(PY) benches/python_step.py

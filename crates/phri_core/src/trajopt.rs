@@ -42,10 +42,12 @@
 //! the segments (31 → 11 waypoints; 100 → 34 → 12), the same features with each weight scaled so
 //! that the coarse cost of a path approximates the fine one (a feature whose total grows like S^e
 //! with the number of segments S weighs r^(1+e) as much, r the ratio of segments; see
-//! [`crate::features::Feature::resolution_exponent`]), the clearance weight r² and the step limits r.
+//! [`crate::features::Feature::resolution_exponent`]; the same rule as
+//! [`crate::features::FeatureSet::rescale_weights`]), the clearance weight r² and the step limits r.
 //! - A cold solve plans the coarse level first (recursively), interpolates its plan (linearly in
-//!   time, which keeps straight lines) and finishes on the given waypoints: 3–8 iterations there instead of 10–27 at N = 31, and 3–8 instead of 9–53 at
-//!   N = 100, each level's iteration costing about in proportion to its waypoints.
+//!   time, which keeps straight lines) and finishes on the given waypoints: 3–8 iterations there
+//!   instead of 10–27 at N = 31, and 3–8 instead of 9–53 at N = 100, each level's iteration
+//!   costing about in proportion to its waypoints.
 //! - A warm start from a plan alone ([`TrajectoryOptimizer::solve`] with `init`) stays on the given
 //!   waypoints. [`TrajectoryOptimizer::solve_levels`] warm-starts from a plan *and* the coarse plans
 //!   that led to it ([`PlanLevels`]): the coarse level replans from its own plan, and the change of

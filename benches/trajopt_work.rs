@@ -1,0 +1,37 @@
+//! `trajopt_work N TASK REPS [unscaled]`: REPS cold solves of a study task on N waypoints, with the
+//! true weight rescaled from the study's 31 waypoints (`FeatureSet::rescale_weights`) or, with
+//! `unscaled`, as given. benches/trajopt_work.py runs it under callgrind: instruction counts do not
+//! move with the machine's load as times do.
+
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use phri_benches::{jaco2, study_planner, study_tasks};
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let usage = "usage: trajopt_work N TASK REPS [unscaled]";
+    let (Some(n), Some(name), Some(reps)) = (
+        args.first().and_then(|v| v.parse::<usize>().ok()).filter(|&n| n >= 3),
+        args.get(1),
+        args.get(2).and_then(|v| v.parse::<usize>().ok()),
+    ) else {
+        eprintln!("{usage}");
+        return ExitCode::from(2);
+    };
+    let unscaled = args.get(3).is_some_and(|a| a == "unscaled");
+    let Some(task) = study_tasks().into_iter().find(|t| t.name == name) else {
+        eprintln!("unknown task {name}; {usage}");
+        return ExitCode::from(2);
+    };
+    let model = Arc::new(jaco2());
+    let (mut fs, mut opt) = study_planner(&model, &task, n);
+    let weights = [1.0, task.true_weight];
+    let weights = if unscaled { weights.to_vec() } else { fs.rescale_weights(&weights, 31, n).expect("two weights") };
+    let mut plan = vec![0.0; n * model.nq()];
+    for _ in 0..reps {
+        let info = opt.solve(&mut fs, &weights, &task.start, &task.goal, None, &mut plan).expect("valid problem");
+        assert!(info.converged, "{name} N={n}: {info:?}");
+    }
+    ExitCode::SUCCESS
+}

@@ -57,8 +57,8 @@ bench-trajopt-peers: $(BUILT)  ## Time phri's trajectory optimiser against scipy
 	$(PIP) install --quiet drake || echo "drake did not install here: its rows are skipped"
 	$(PY) benches/trajopt_peers.py
 
-bench-trajopt-work: $(DEPS)  ## Instructions per cold plan, N = 100 against N = 31 (callgrind; needs valgrind)
-	$(PY) benches/trajopt_work.py
+bench-trajopt-work:  ## Instructions per cold plan, N = 100 against N = 31 (callgrind; needs valgrind)
+	python3 benches/trajopt_work.py
 
 bench-python: $(BUILT)  ## Time the per-tick calls of a 1 kHz loop written in Python
 	$(PY) benches/python_step.py

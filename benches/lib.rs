@@ -82,6 +82,35 @@ pub const VELOCITY_MARGIN: f64 = 0.5;
 /// it: features ["efficiency", task], clearance for the tool point and link_7 (weight 10³), and
 /// max_step = 0.5 × velocity limit × waypoint spacing; other parameters at their defaults.
 pub fn study_planner(model: &Arc<RobotModel>, task: &StudyTask, waypoints: usize) -> (FeatureSet, TrajectoryOptimizer) {
+    planner(model, task, waypoints, CLEARANCE_WEIGHT)
+}
+
+/// The study's planning problem posed on `waypoints` waypoints with the trade-off it has on the
+/// study's 31: the planner of [`study_planner`] with the clearance weight scaled by r² (r = 30 /
+/// (waypoints − 1), as the per-waypoint features) and the weights [1, true weight] rescaled by
+/// `FeatureSet::rescale_weights`, which it returns.
+pub fn study_problem_at(
+    model: &Arc<RobotModel>,
+    task: &StudyTask,
+    waypoints: usize,
+) -> (FeatureSet, TrajectoryOptimizer, Vec<f64>) {
+    let r = (STUDY_WAYPOINTS - 1) as f64 / (waypoints - 1) as f64;
+    let (features, optimizer) = planner(model, task, waypoints, CLEARANCE_WEIGHT * r * r);
+    let weights = features.rescale_weights(&[1.0, task.true_weight], STUDY_WAYPOINTS, waypoints).expect("two weights");
+    (features, optimizer, weights)
+}
+
+/// Waypoints of the study's plans (T = 15 s in 0.5 s steps).
+pub const STUDY_WAYPOINTS: usize = 31;
+/// The study planner's clearance penalty weight [1/m²].
+const CLEARANCE_WEIGHT: f64 = 1e3;
+
+fn planner(
+    model: &Arc<RobotModel>,
+    task: &StudyTask,
+    waypoints: usize,
+    clearance_weight: f64,
+) -> (FeatureSet, TrajectoryOptimizer) {
     let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
     let hand = model.frame_id("j2s7s300_end_effector").expect("tool point exists");
     let features = FeatureSet::from_names(model.clone(), link_7, &["efficiency", task.name], &SceneParams::default())
@@ -89,8 +118,8 @@ pub fn study_planner(model: &Arc<RobotModel>, task: &StudyTask, waypoints: usize
     let spacing = DURATION / (waypoints - 1) as f64;
     let params = TrajoptParams {
         clearance: vec![
-            Clearance { frame: hand, min_z: TABLE_TOP + HAND_CLEARANCE, weight: 1e3 },
-            Clearance { frame: link_7, min_z: TABLE_TOP + CUP_CLEARANCE, weight: 1e3 },
+            Clearance { frame: hand, min_z: TABLE_TOP + HAND_CLEARANCE, weight: clearance_weight },
+            Clearance { frame: link_7, min_z: TABLE_TOP + CUP_CLEARANCE, weight: clearance_weight },
         ],
         max_step: model.velocity_limits().iter().map(|v| VELOCITY_MARGIN * v * spacing).collect(),
         ..Default::default()

@@ -10,9 +10,11 @@
 //! - cold replan from the straight line for the true weights, N = 31: ≤ 5 ms;
 //! - the same for N = 100: ≤ 4 × the N = 31 time. The true weights are the study's for 31 waypoints
 //!   (Φ sums over waypoints); on 100 the same task takes them rescaled by
-//!   `FeatureSet::rescale_weights` (task weight × (30/99)²), and plans the same path (within
-//!   0.02 rad, tests/test_trajopt.py). The tail rows also time the unscaled weights, which pose
-//!   another trade-off on 100 waypoints (the task weighed 11 times more against efficiency).
+//!   `FeatureSet::rescale_weights` (task weight × (30/99)²) and the clearance weight by the same
+//!   factor (`phri_benches::study_problem_at`), and plans the same path (within 0.02 rad,
+//!   tests/test_trajopt.py). The tail rows also time the study's planner with the weights
+//!   unscaled, which pose another trade-off on 100 waypoints (the task weighed 11 times more
+//!   against efficiency).
 //!
 //! Criterion gives medians (of batch averages). A single repeated problem has no tail apart from
 //! the machine, so after the criterion groups this binary times individual calls with `Instant` over
@@ -36,7 +38,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use criterion::{criterion_group, BatchSize, BenchmarkId, Criterion, Throughput};
-use phri_benches::{corrective_push, jaco2, study_learner, study_planner, study_tasks, StudyTask};
+use phri_benches::{corrective_push, jaco2, study_learner, study_planner, study_problem_at, study_tasks, StudyTask};
 use phri_core::features::FeatureSet;
 use phri_core::learner::LearnerParams;
 use phri_core::trajopt::{PlanLevels, TrajectoryOptimizer, TrajoptInfo};
@@ -69,11 +71,6 @@ fn solve_levels(
     opt.solve_levels(fs, &[1.0, w], &task.start, &task.goal, init, out).expect("valid problem")
 }
 
-/// The task weight that poses on `n` waypoints the trade-off the true weight poses on the study's 31.
-fn task_weight(fs: &FeatureSet, task: &StudyTask, n: usize) -> f64 {
-    fs.rescale_weights(&[1.0, task.true_weight], 31, n).expect("two weights")[1]
-}
-
 fn cold(c: &mut Criterion) {
     let model = Arc::new(jaco2());
     let mut group = c.benchmark_group("trajopt_cold");
@@ -81,8 +78,8 @@ fn cold(c: &mut Criterion) {
     for n in [31, 100] {
         group.throughput(Throughput::Elements(n as u64));
         for task in study_tasks() {
-            let (mut fs, mut opt) = study_planner(&model, &task, n);
-            let w = task_weight(&fs, &task, n);
+            let (mut fs, mut opt, weights) = study_problem_at(&model, &task, n);
+            let w = weights[1];
             let mut plan = vec![0.0; n * NQ];
             let info = solve(&mut fs, &mut opt, &task, w, None, &mut plan);
             eprintln!("cold {:>6} N={n:<3} {info:?}", task.name);
@@ -161,14 +158,19 @@ fn tails(reps: usize) {
     println!("individual calls with Instant over varied problems [ms] (the max also measures the machine)");
     println!("  {:<26} {:>6} {:>9} {:>9} {:>9}", "case", "calls", "median", "p99", "max");
     let mut cold31 = Vec::new();
-    // N = 100 with the weights rescaled (the task's plan on 100 waypoints), then with the study's
-    // weights for 31 unscaled: they weigh the task (99/30)² ≈ 11 times more against efficiency, a
+    // N = 100 with the weights and the clearance rescaled (the task's plan on 100 waypoints), then
+    // the study's planner with its weights for 31 unscaled: they weigh the task (99/30)² ≈ 11 times more against efficiency, a
     // harder problem (on the table task the plan races down at the joints' speed limits and presses
     // 15 times harder into the clearance).
     for (n, rescaled) in [(31, true), (100, true), (100, false)] {
         for task in study_tasks() {
-            let (mut fs, mut opt) = study_planner(&model, &task, n);
-            let w = if rescaled { task_weight(&fs, &task, n) } else { task.true_weight };
+            let (mut fs, mut opt, w) = if rescaled {
+                let (fs, opt, weights) = study_problem_at(&model, &task, n);
+                (fs, opt, weights[1])
+            } else {
+                let (fs, opt) = study_planner(&model, &task, n);
+                (fs, opt, task.true_weight)
+            };
             let mut plan = vec![0.0; n * NQ];
             let mut samples = Vec::new();
             let mut info = None;

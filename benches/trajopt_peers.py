@@ -113,10 +113,15 @@ def phri_optimizer(problem: Problem, **kwargs) -> phri.TrajectoryOptimizer:
         robot, list(problem.names), laptop_center=problem.laptop_center, human_center=problem.human_center,
         laptop_radius=problem.laptop_radius, human_radius=problem.human_radius, samples=problem.samples,
     )  # fmt: skip
+    options = {
+        "clearance_weight": CLEARANCE_WEIGHT,
+        "step_weight": STEP_WEIGHT,
+        "smoothing": problem.smoothing,
+        **kwargs,
+    }
     return phri.TrajectoryOptimizer(
-        features, problem.waypoints, clearance=list(problem.clearance), clearance_weight=CLEARANCE_WEIGHT,
-        max_step=problem.max_step, step_weight=STEP_WEIGHT, smoothing=problem.smoothing, **kwargs,
-    )  # fmt: skip
+        features, problem.waypoints, clearance=list(problem.clearance), max_step=problem.max_step, **options
+    )
 
 
 def straight_line(problem: Problem) -> np.ndarray:

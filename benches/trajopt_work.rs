@@ -1,12 +1,12 @@
-//! `trajopt_work N TASK REPS [unscaled]`: REPS cold solves of a study task on N waypoints, with the
-//! true weight rescaled from the study's 31 waypoints (`FeatureSet::rescale_weights`) or, with
-//! `unscaled`, as given. benches/trajopt_work.py runs it under callgrind: instruction counts do not
+//! `trajopt_work N TASK REPS [unscaled]`: REPS cold solves of a study task on N waypoints, posed
+//! with the trade-off of the study's 31 waypoints (`phri_benches::study_problem_at`: weights and
+//! clearance rescaled) or, with `unscaled`, by the study's planner with the true weight as given. benches/trajopt_work.py runs it under callgrind: instruction counts do not
 //! move with the machine's load as times do.
 
 use std::process::ExitCode;
 use std::sync::Arc;
 
-use phri_benches::{jaco2, study_planner, study_tasks};
+use phri_benches::{jaco2, study_planner, study_problem_at, study_tasks};
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -19,15 +19,25 @@ fn main() -> ExitCode {
         eprintln!("{usage}");
         return ExitCode::from(2);
     };
-    let unscaled = args.get(3).is_some_and(|a| a == "unscaled");
+    let unscaled = match args.get(3).map(String::as_str) {
+        None => false,
+        Some("unscaled") => true,
+        Some(other) => {
+            eprintln!("unknown option {other}; {usage}");
+            return ExitCode::from(2);
+        }
+    };
     let Some(task) = study_tasks().into_iter().find(|t| t.name == name) else {
         eprintln!("unknown task {name}; {usage}");
         return ExitCode::from(2);
     };
     let model = Arc::new(jaco2());
-    let (mut fs, mut opt) = study_planner(&model, &task, n);
-    let weights = [1.0, task.true_weight];
-    let weights = if unscaled { weights.to_vec() } else { fs.rescale_weights(&weights, 31, n).expect("two weights") };
+    let (mut fs, mut opt, weights) = if unscaled {
+        let (fs, opt) = study_planner(&model, &task, n);
+        (fs, opt, vec![1.0, task.true_weight])
+    } else {
+        study_problem_at(&model, &task, n)
+    };
     let mut plan = vec![0.0; n * model.nq()];
     for _ in 0..reps {
         let info = opt.solve(&mut fs, &weights, &task.start, &task.goal, None, &mut plan).expect("valid problem");

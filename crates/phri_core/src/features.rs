@@ -497,7 +497,8 @@ pub trait Feature: FeatureClone + Send + Sync {
     /// cut into: Φ ∝ S^e. The default, 1, fits sums of a quantity at every waypoint or at points
     /// along every segment; a sum of squared differences between consecutive waypoints (like
     /// [`Efficiency`]) has −1. The optimiser's coarse levels weigh the feature by it (see
-    /// `trajopt`, multiresolution); a wrong value only makes their initial guess worse.
+    /// `trajopt`, multiresolution; a wrong value makes their initial guess worse), and so does
+    /// [`FeatureSet::rescale_weights`] (a wrong value there poses another trade-off).
     fn resolution_exponent(&self) -> i32 {
         1
     }
@@ -979,13 +980,16 @@ impl FeatureSet {
     }
 
     /// The weights that pose on a path of `to_waypoints` waypoints the trade-off `weights` pose on
-    /// the same path cut into `from_waypoints`: w_k·r^(1+e_k), r = (from − 1)/(to − 1), e_k the
-    /// feature's [`Feature::resolution_exponent`]. Φ is a sum over waypoints or segments, so the
-    /// same weights on a finer grid weigh per-waypoint features more against efficiency (a sum of
-    /// squared steps): on 100 waypoints the study's weights for 31 weigh the task (99/30)² ≈ 11
-    /// times more, and the table plan is a different plan (0.39 rad away from the 31-waypoint one
-    /// in some joint; with rescaled weights 0.015 rad; `benches/trajopt.rs`). Penalties of the optimiser
-    /// (`TrajoptParams::clearance`) are not features and are not rescaled here.
+    /// the same path cut into `from_waypoints` (with the same ranges): w_k·r^(1+e_k),
+    /// r = (from − 1)/(to − 1), e_k the feature's [`Feature::resolution_exponent`]. For a fixed
+    /// path w'·Φ(to) ≈ r·w·Φ(from), so the objective is the same up to a factor and has the same
+    /// optimum. Φ is a sum over waypoints or segments, so unscaled weights on a finer grid weigh
+    /// per-waypoint features more against efficiency (a sum of squared steps): on 100 waypoints the
+    /// study's weights for 31 weigh the task (99/30)² ≈ 11 times more, and the table plan is
+    /// another plan (0.39 rad away from the 31-waypoint one in some joint; rescaled, within
+    /// 0.02 rad on the four tasks: tests/test_trajopt.py). The optimiser's clearance penalty is a
+    /// sum over waypoints too but not a feature: for the same trade-off scale its weight by r²
+    /// (what the per-waypoint features get); left as it is, it holds the clearance tighter.
     pub fn rescale_weights(&self, weights: &[f64], from_waypoints: usize, to_waypoints: usize) -> Result<Vec<f64>> {
         check_vector("weights", weights, self.len())?;
         for (arg, n) in [("from_waypoints", from_waypoints), ("to_waypoints", to_waypoints)] {
@@ -994,13 +998,20 @@ impl FeatureSet {
             }
         }
         let ratio = (from_waypoints - 1) as f64 / (to_waypoints - 1) as f64;
-        Ok(weights.iter().zip(self.resolution_scales(ratio)).map(|(w, scale)| w * scale).collect())
+        let out: Vec<f64> = weights.iter().zip(self.resolution_scales(ratio)).map(|(w, scale)| w * scale).collect();
+        if let Some(k) = out.iter().position(|v| !v.is_finite()) {
+            return Err(PhriError::invalid(
+                "weights",
+                format!("rescaled from {from_waypoints} to {to_waypoints} waypoints overflow: weight {k} becomes {}", out[k]),
+            ));
+        }
+        Ok(out)
     }
 
     /// Per feature, the factor r^(1+e) that keeps its weight's trade-off against the others when
     /// each segment becomes r times as long (see [`FeatureSet::rescale_weights`]).
     pub(crate) fn resolution_scales(&self, ratio: f64) -> impl Iterator<Item = f64> + '_ {
-        self.features.iter().map(move |f| ratio.powi(1 + f.resolution_exponent()))
+        self.features.iter().map(move |f| ratio.powi(f.resolution_exponent().saturating_add(1)))
     }
 
     pub fn names(&self) -> Vec<&str> {

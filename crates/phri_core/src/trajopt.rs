@@ -46,7 +46,8 @@
 //! [`crate::features::FeatureSet::rescale_weights`]), the clearance weight r² and the step limits r.
 //! - A cold solve plans the coarse level first (recursively), interpolates its plan (linearly in
 //!   time, which keeps straight lines) and finishes on the given waypoints: 3–8 iterations there
-//!   instead of 10–27 at N = 31, and 3–8 instead of 9–53 at N = 100, each level's iteration
+//!   instead of 10–27 at N = 31, and 3–8 instead of 9–53 at N = 100 (the study's weights for 31
+//!   unscaled; see [`crate::features::FeatureSet::rescale_weights`]), each level's iteration
 //!   costing about in proportion to its waypoints.
 //! - A warm start from a plan alone ([`TrajectoryOptimizer::solve`] with `init`) stays on the given
 //!   waypoints. [`TrajectoryOptimizer::solve_levels`] warm-starts from a plan *and* the coarse plans
@@ -106,7 +107,7 @@ pub enum KinematicCurvature {
     /// Leave them out: the Gauss–Newton part only. Far from the optimum it models these features
     /// better than the exact Hessian, which is indefinite along much of the path and forces heavy
     /// damping (measured: table 29 → 20 iterations at N = 31 against `Exact`, coffee 18 → 9 at
-    /// N = 100); near it, convergence is only linear where they matter (table: the clearance
+    /// N = 100 with the study's weights for 31); near it, convergence is only linear where they matter (table: the clearance
     /// holds the hand down and the table feature's curvature decides the rest).
     GaussNewton,
     /// Gauss–Newton until the model's pieces agree with its step (the active set has settled) and
@@ -206,11 +207,12 @@ pub struct TrajoptInfo {
 /// Semismooth re-solves per Newton step at most, up to 45 waypoints. Each costs a factorisation
 /// from the first changed block; beyond three the steps get more exact but not cheaper overall
 /// (measured on the study's tasks: 12 → 3 cut the N = 31 cold solves by a fifth, N = 100 by a
-/// sixth; the outer line search keeps a step that stops short a descent step).
+/// sixth, both with the study's weights for 31; the outer line search keeps a step that stops short a descent step).
 const MAX_INNER: usize = 3;
 
 /// Semismooth re-solves per Newton step at most for `m` waypoints: [`MAX_INNER`], or one per 15
-/// waypoints if more (more waypoints, more pieces that switch together: measured at N = 100, 6
+/// waypoints if more (more waypoints, more pieces that switch together: measured at N = 100 with
+/// the study's weights for 31, 6
 /// re-solves take the fine level of the table, laptop and human tasks from 15, 6, 5 iterations to
 /// 8, 4, 3 and a quarter fewer instructions on the table task).
 fn max_inner(m: usize) -> usize {
@@ -220,7 +222,8 @@ fn max_inner(m: usize) -> usize {
 /// Weight κ of the smoothness metric in the Newton damping λ·(I + κT), T = tridiag(−1, 2, −1) ⊗ I
 /// over the interior waypoints: a heavily damped step is then a smooth (covariant, CHOMP-like)
 /// deformation of the whole path rather than a jagged gradient step at a few waypoints (measured
-/// on the study's tasks: 82 → 71 iterations for the four cold N = 31 solves, 151 → 122 at N = 100;
+/// on the study's tasks: 82 → 71 iterations for the four cold N = 31 solves, 151 → 122 at N = 100
+/// with the study's weights for 31;
 /// 30 to 1000 do about as well).
 const DAMPING_METRIC: f64 = 100.0;
 

@@ -340,35 +340,45 @@ fn a_feature_written_outside_the_crate_is_counted_differentiated_and_optimised()
 
 #[test]
 fn rescaled_weights_cost_a_path_the_same_on_any_grid() {
-    // For a fixed smooth path, Φ_efficiency ∝ 1/S and the per-waypoint features ∝ S (S segments),
-    // so with rescaled weights w'·Φ(S₂) = (S₁/S₂)·w·Φ(S₁): the same objective up to a factor,
-    // hence the same optimum, on any grid.
-    let mut fs = feature_set(&["efficiency", "table", "coffee", "laptop"]);
-    let a = deg([210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8]);
+    // For a fixed smooth path Φ_k(S) ≈ S^(e_k)·c_k (S segments), so with the rescaled weights
+    // w'·Φ(S₂) = (S₁/S₂)·w·Φ(S₁): the same objective up to a factor, hence the same optimum.
+    let names = ["efficiency", "table", "coffee", "laptop", "origin"];
+    let mut fs = feature_set(&names);
+    let a = deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);
     let b = deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]);
-    let w = [1.0, 0.7, 0.4, 2.0];
-    let cost = |fs: &mut FeatureSet, weights: &[f64], n: usize| {
-        let mut phi = vec![0.0; 4];
+    let phi = |fs: &mut FeatureSet, n: usize| {
+        let mut phi = vec![0.0; names.len()];
         fs.phi(&trajectory(&a, &b, n, 0.3), &mut phi).unwrap();
-        phi.iter().zip(weights).map(|(p, w)| p * w).sum::<f64>()
+        phi
     };
-    let coarse = cost(&mut fs, &w, 31);
+    let (coarse, fine) = (phi(&mut fs, 31), phi(&mut fs, 301));
+    let ratio: f64 = 30.0 / 300.0;
+    for (k, e) in fs.resolution_exponents().into_iter().enumerate() {
+        // Each feature's own growth, so each exponent is checked (the sums' ends differ by O(1/S)).
+        assert!(coarse[k].abs() > 1e-3, "{}: the path must give it a value, got {}", names[k], coarse[k]);
+        let expected = coarse[k] * ratio.powi(-e);
+        assert!((fine[k] - expected).abs() < 0.05 * expected.abs(), "{}: {} vs {expected}", names[k], fine[k]);
+    }
+    let w = [1.0, 0.7, 0.4, 2.0, 3.0];
     let rescaled = fs.rescale_weights(&w, 31, 301).unwrap();
     assert_eq!(rescaled[0], w[0], "efficiency keeps its weight");
-    let ratio = 30.0 / 300.0;
-    for k in 1..4 {
+    for k in 1..names.len() {
         assert!((rescaled[k] - w[k] * ratio * ratio).abs() < 1e-15, "{rescaled:?}");
     }
-    let fine = cost(&mut fs, &rescaled, 301);
-    assert!((fine / ratio - coarse).abs() < 0.02 * coarse, "{} vs {coarse}", fine / ratio);
+    let cost = |weights: &[f64], phi: &[f64]| weights.iter().zip(phi).map(|(w, p)| w * p).sum::<f64>();
+    let (before, after) = (cost(&w, &coarse), cost(&rescaled, &fine));
+    assert!((after / ratio - before).abs() < 0.03 * before, "{} vs {before}", after / ratio);
     // Unscaled, the same weights price the path differently relative to efficiency.
-    let unscaled = cost(&mut fs, &w, 301);
-    assert!((unscaled / ratio - coarse).abs() > 10.0 * coarse);
+    assert!((cost(&w, &fine) / ratio - before).abs() > 10.0 * before);
     assert_eq!(fs.rescale_weights(&w, 31, 31).unwrap(), w.to_vec());
     let err = fs.rescale_weights(&w[..3], 31, 100).unwrap_err().to_string();
-    assert!(err.starts_with("weights must have shape (4,)"), "{err}");
+    assert!(err.starts_with("weights must have shape (5,)"), "{err}");
     for (from, to, arg) in [(1, 100, "from_waypoints"), (31, 0, "to_waypoints")] {
         let err = fs.rescale_weights(&w, from, to).unwrap_err().to_string();
         assert!(err.starts_with(arg), "{err}");
     }
+    let err = fs.rescale_weights(&[1.0, f64::NAN, 0.0, 0.0, 0.0], 31, 100).unwrap_err().to_string();
+    assert!(err.starts_with("weights must be finite"), "{err}");
+    let err = fs.rescale_weights(&[1.0, 1e300, 0.0, 0.0, 0.0], 1_000_000, 2).unwrap_err().to_string();
+    assert!(err.starts_with("weights rescaled from 1000000 to 2 waypoints overflow"), "{err}");
 }

@@ -98,7 +98,8 @@ impl PyFeatures {
     /// on `from_waypoints`: each w_k times r^(1+e_k), r = (from − 1)/(to − 1), e_k = −1 for
     /// efficiency (a sum of squared steps) and 1 for the per-waypoint features. Φ sums over
     /// waypoints, so weights learnt on 31 waypoints weigh the task 11 times more on 100 unless
-    /// rescaled. The optimiser's clearance penalty is not a feature and is not rescaled.
+    /// rescaled. The optimiser's clearance penalty sums over waypoints too but is not a feature:
+    /// for the same trade-off scale `clearance_weight` by r² as well.
     fn rescale_weights<'py>(
         &self,
         py: Python<'py>,

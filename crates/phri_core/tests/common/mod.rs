@@ -3,7 +3,7 @@
 
 use phri_core::RobotModel;
 
-pub const JACO2_URDF: &str = include_str!("../../../python/phri/robots/jaco2/j2s7s300.urdf");
+pub const JACO2_URDF: &str = include_str!("../../../../python/phri/robots/jaco2/j2s7s300.urdf");
 
 pub fn jaco2() -> RobotModel {
     RobotModel::from_urdf_str(JACO2_URDF, Some("root"), Some("j2s7s300_end_effector")).unwrap()

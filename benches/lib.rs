@@ -77,6 +77,10 @@ pub const HAND_CLEARANCE: f64 = 0.1016;
 pub const CUP_CLEARANCE: f64 = 0.06;
 /// Plans move each joint at most this fraction of its velocity limit.
 pub const VELOCITY_MARGIN: f64 = 0.5;
+/// Waypoints of the study's plans (T = 15 s in 0.5 s steps).
+pub const STUDY_WAYPOINTS: usize = 31;
+/// The study planner's clearance penalty weight [1/m²].
+const CLEARANCE_WEIGHT: f64 = 1e3;
 
 /// The study's planner for `task` over `waypoints` waypoints, exactly as `phri.sim.Planner` builds
 /// it: features ["efficiency", task], clearance for the tool point and link_7 (weight 10³), and
@@ -99,11 +103,6 @@ pub fn study_problem_at(
     let weights = features.rescale_weights(&[1.0, task.true_weight], STUDY_WAYPOINTS, waypoints).expect("two weights");
     (features, optimizer, weights)
 }
-
-/// Waypoints of the study's plans (T = 15 s in 0.5 s steps).
-pub const STUDY_WAYPOINTS: usize = 31;
-/// The study planner's clearance penalty weight [1/m²].
-const CLEARANCE_WEIGHT: f64 = 1e3;
 
 fn planner(
     model: &Arc<RobotModel>,

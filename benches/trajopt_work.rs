@@ -1,7 +1,8 @@
 //! `trajopt_work N TASK REPS [unscaled]`: REPS cold solves of a study task on N waypoints, posed
 //! with the trade-off of the study's 31 waypoints (`phri_benches::study_problem_at`: weights and
-//! clearance rescaled) or, with `unscaled`, by the study's planner with the true weight as given. benches/trajopt_work.py runs it under callgrind: instruction counts do not
-//! move with the machine's load as times do.
+//! clearance rescaled) or, with `unscaled`, by the study's planner with the true weight as given.
+//! benches/trajopt_work.py runs it under callgrind: instruction counts do not move with the
+//! machine's load as times do.
 
 use std::process::ExitCode;
 use std::sync::Arc;

@@ -55,9 +55,9 @@
 //!   the coarse plan, interpolated, is added to the fine one, which the fine level then finishes. A
 //!   weight change that moves the path far (0 → 10 on the keep-out tasks: 19–20 fine iterations from
 //!   the plan alone) is then worked out on the coarse level (14 iterations there, then 5–6 fine
-//!   ones), while a small one costs a few coarse iterations more than it would alone. Adding the coarse *change* rather
-//!   than taking the coarse plan keeps what the fine level had already resolved: a plan optimal for
-//!   the weights stays put. The learner replans this way.
+//!   ones), while a small one costs a few coarse iterations more than it would alone. Adding the
+//!   coarse *change* rather than taking the coarse plan keeps what the fine level had already
+//!   resolved: a plan optimal for the weights stays put. The learner replans this way.
 //!
 //! [`TrajoptMethod::Lbfgs`] keeps the earlier solver: projected L-BFGS whose initial inverse Hessian
 //! is the banded smoothness metric (a CHOMP-style covariant first step).
@@ -107,8 +107,9 @@ pub enum KinematicCurvature {
     /// Leave them out: the Gauss–Newton part only. Far from the optimum it models these features
     /// better than the exact Hessian, which is indefinite along much of the path and forces heavy
     /// damping (measured: table 29 → 20 iterations at N = 31 against `Exact`, coffee 18 → 9 at
-    /// N = 100 with the study's weights for 31); near it, convergence is only linear where they matter (table: the clearance
-    /// holds the hand down and the table feature's curvature decides the rest).
+    /// N = 100 with the study's weights for 31); near it, convergence is only linear where they
+    /// matter (table: the clearance holds the hand down and the table feature's curvature decides
+    /// the rest).
     GaussNewton,
     /// Gauss–Newton until the model's pieces agree with its step (the active set has settled) and
     /// it predicts little more decrease, exact from then on, for a quadratic end (measured on the
@@ -207,14 +208,14 @@ pub struct TrajoptInfo {
 /// Semismooth re-solves per Newton step at most, up to 45 waypoints. Each costs a factorisation
 /// from the first changed block; beyond three the steps get more exact but not cheaper overall
 /// (measured on the study's tasks: 12 → 3 cut the N = 31 cold solves by a fifth, N = 100 by a
-/// sixth, both with the study's weights for 31; the outer line search keeps a step that stops short a descent step).
+/// sixth, both with the study's weights for 31; the outer line search keeps a step that stops
+/// short a descent step).
 const MAX_INNER: usize = 3;
 
 /// Semismooth re-solves per Newton step at most for `m` waypoints: [`MAX_INNER`], or one per 15
 /// waypoints if more (more waypoints, more pieces that switch together: measured at N = 100 with
-/// the study's weights for 31, 6
-/// re-solves take the fine level of the table, laptop and human tasks from 15, 6, 5 iterations to
-/// 8, 4, 3 and a quarter fewer instructions on the table task).
+/// the study's weights for 31, 6 re-solves take the fine level of the table, laptop and human
+/// tasks from 15, 6, 5 iterations to 8, 4, 3 and a quarter fewer instructions on the table task).
 fn max_inner(m: usize) -> usize {
     MAX_INNER.max(m / 15)
 }
@@ -223,14 +224,18 @@ fn max_inner(m: usize) -> usize {
 /// over the interior waypoints: a heavily damped step is then a smooth (covariant, CHOMP-like)
 /// deformation of the whole path rather than a jagged gradient step at a few waypoints (measured
 /// on the study's tasks: 82 → 71 iterations for the four cold N = 31 solves, 151 → 122 at N = 100
-/// with the study's weights for 31;
-/// 30 to 1000 do about as well).
+/// with the study's weights for 31; 30 to 1000 do about as well).
 const DAMPING_METRIC: f64 = 100.0;
 
 /// Least damping, relative to the curvature scale, once a factorisation has failed (then ×4 until
 /// one succeeds). Measured on the study's tasks against 10⁻⁴: the replans after the first push on
 /// the keep-out tasks take 8–17% fewer instructions, the others as many.
 const INDEFINITE_DAMPING: f64 = 1e-5;
+
+/// Damping, relative to the curvature scale, at or below which a step counts as a Newton step: a
+/// small predicted or actual decrease means convergence only then (a heavily damped step is short
+/// whatever is left to gain), and damping harder starts from at least this.
+const LOW_DAMPING: f64 = 1e-4;
 
 /// The Newton damping for λ (see [`DAMPING_METRIC`]).
 fn damping(lambda: f64) -> Damping {
@@ -1312,7 +1317,8 @@ impl TrajectoryOptimizer {
             // The slope of the projected path clip(x + α·d) at α = 0: the variables strictly inside
             // the box move along d, and those at a bound that d pushes out are held (above).
             let slope = dot(&self.grad[lo..hi], &self.direction[lo..hi]);
-            if consistent && predicted <= self.params.relative_tolerance * cost.abs().max(1e-300) && lambda <= 1e-4 * scale {
+            if consistent && predicted <= self.params.relative_tolerance * cost.abs().max(1e-300) && lambda <= LOW_DAMPING * scale
+            {
                 // The model predicts no further decrease worth a step: converged.
                 converged = true;
                 break;
@@ -1321,7 +1327,7 @@ impl TrajectoryOptimizer {
                 // Not a descent direction (the pieces' model is only linearised): damp harder, or
                 // first drop a kinematic curvature taken on too early.
                 if !self.drop_settled_curvature(features, weights, &mut fell_back) {
-                    lambda = (lambda * 16.0).max(1e-4 * scale);
+                    lambda = (lambda * 16.0).max(LOW_DAMPING * scale);
                 }
                 continue;
             }
@@ -1368,7 +1374,7 @@ impl TrajectoryOptimizer {
                 if self.drop_settled_curvature(features, weights, &mut fell_back) {
                     continue;
                 }
-                lambda = (lambda * 16.0).max(1e-4 * scale);
+                lambda = (lambda * 16.0).max(LOW_DAMPING * scale);
                 if lambda > lambda_max {
                     converged = cost.is_finite(); // no step of any length helps: stationary
                     break;
@@ -1382,7 +1388,10 @@ impl TrajectoryOptimizer {
             cost = new_cost;
             penalty = new_penalty;
             largest = self.mark_fixed();
-            if alpha == 1.0 && decrease <= self.params.relative_tolerance * cost.abs().max(1e-300) && lambda <= 1e-4 * scale {
+            if alpha == 1.0
+                && decrease <= self.params.relative_tolerance * cost.abs().max(1e-300)
+                && lambda <= LOW_DAMPING * scale
+            {
                 // (A heavily damped step is short whatever is left to gain: not a sign of the end.)
                 converged = true;
                 break;

@@ -74,6 +74,23 @@ pub struct PyTrajectoryOptimizer {
     pub(crate) features: FeatureSet,
 }
 
+impl PyTrajectoryOptimizer {
+    /// The checked, owned (weights, start, goal) of a solve (owned: the solve runs without the GIL).
+    fn problem(
+        &self,
+        weights: &ArrayIn<'_>,
+        start: &ArrayIn<'_>,
+        goal: &ArrayIn<'_>,
+    ) -> PyResult<(Vec<f64>, Vec<f64>, Vec<f64>)> {
+        let n = self.features.model().nq();
+        Ok((
+            vector("weights", weights, self.features.len())?.into_owned(),
+            vector("start", start, n)?.into_owned(),
+            vector("goal", goal, n)?.into_owned(),
+        ))
+    }
+}
+
 #[pymethods]
 impl PyTrajectoryOptimizer {
     #[new]
@@ -208,9 +225,7 @@ impl PyTrajectoryOptimizer {
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, PyTrajoptInfo)> {
         let n = self.features.model().nq();
         let m = self.optimizer.waypoints();
-        let weights = vector("weights", &weights, self.features.len())?.into_owned();
-        let start = vector("start", &start, n)?.into_owned();
-        let goal = vector("goal", &goal, n)?.into_owned();
+        let (weights, start, goal) = self.problem(&weights, &start, &goal)?;
         let init = match &init {
             Some(x) => Some(matrix("init", x, Some(m), n)?.0.into_owned()),
             None => None,
@@ -237,9 +252,7 @@ impl PyTrajectoryOptimizer {
         init: Option<PyRef<'py, PyPlanLevels>>,
     ) -> PyResult<(PyPlanLevels, PyTrajoptInfo)> {
         let n = self.features.model().nq();
-        let weights = vector("weights", &weights, self.features.len())?.into_owned();
-        let start = vector("start", &start, n)?.into_owned();
-        let goal = vector("goal", &goal, n)?.into_owned();
+        let (weights, start, goal) = self.problem(&weights, &start, &goal)?;
         let init = init.map(|l| l.levels.clone());
         let mut out = self.optimizer.plan_levels();
         let (optimizer, features) = (&mut self.optimizer, &mut self.features);

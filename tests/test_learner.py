@@ -27,7 +27,6 @@ DOWN_25N = np.array([0.0, 0.0, -25.0, 0.0, 0.0, 0.0])  # wrench at the tool poin
 # Table task (Task 2), cost form: efficiency never learned, table learned with gain 2, clipped to [0, 1].
 STEP, LOWER, UPPER, LEARNED = [0.0, 2.0], [1.0, 0.0], [1.0, 1.0], [False, True]
 INITIAL = [1.0, 0.0]
-KEYS = {"t", "u_h", "delta_phi", "weights", "moved", "update", "replan"}
 
 
 @pytest.fixture(scope="module")
@@ -224,7 +223,8 @@ def test_observe_and_reference_errors_are_typed_and_leave_the_learner_untouched(
         call(learner)
     # The failed call consumed no sample instant and recorded nothing.
     assert learner.observe(0.0, np.zeros(7)) == (True, False, False)
-    assert learner.interactions() == [] and len(learner.plans()) == 1
+    history = learner.history()
+    assert len(history) == 0 and history.t.shape == (0,) and history.plan_t.shape == (1,)
 
 
 def test_a_finite_but_absurd_torque_is_an_error_naming_it(make):
@@ -261,7 +261,7 @@ def test_a_late_tick_samples_once_and_missed_instants_are_not_replayed(make):
     assert learner.observe(0.35, push) == (True, True, False), "0.1, 0.2, 0.3 missed: one late sample"
     assert learner.observe(0.38, push) == (False, False, False)
     assert learner.observe(0.4, push) == (True, True, False)
-    assert [i["t"] for i in learner.interactions()] == [0.35, 0.4]
+    assert learner.history().t.tolist() == [0.35, 0.4]
 
 
 def test_thresholds_are_the_jaco2s_and_strict(make):
@@ -272,16 +272,16 @@ def test_thresholds_are_the_jaco2s_and_strict(make):
     for tau in (0.999 * signs * THRESHOLDS, signs * THRESHOLDS):  # below and exactly at: no interaction
         assert learner.observe(t, tau) == (True, False, False)
         t += 0.1
-    assert learner.interactions() == []
+    assert len(learner.history()) == 0
     for j in range(7):
         tau = 0.99 * signs * THRESHOLDS
         tau[j] = signs[j] * 1.01 * THRESHOLDS[j]
         assert learner.observe(t, tau) == (True, True, False), f"joint {j}"
         want = np.zeros(7)
         want[j] = tau[j]
-        np.testing.assert_array_equal(learner.interactions()[-1]["u_h"], want)
+        np.testing.assert_array_equal(learner.history().u_h[-1], want)
         t += 0.1
-    assert len(learner.interactions()) == 7
+    assert learner.history().u_h.shape == (7, 7)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -297,19 +297,19 @@ def test_without_learning_pushes_are_recorded_but_nothing_changes(robot, make):
     for t in t_push:
         tau = push_torque(robot, learner, t)
         assert learner.observe(t, tau) == (True, True, False)
-    records = learner.interactions()
-    assert [r["t"] for r in records] == t_push
-    for r, t in zip(records, t_push, strict=True):
-        np.testing.assert_array_equal(r["u_h"], reference_u_h(push_torque(robot, learner, t)))
-        assert np.any(r["u_h"] != 0)
-        assert r["delta_phi"].shape == (0,) and r["moved"] == 0
-        assert r["update"] is None and r["replan"] is None
-        np.testing.assert_array_equal(r["weights"], INITIAL)
+    history = learner.history()
+    assert history.t.tolist() == t_push
+    for i, t in enumerate(t_push):
+        np.testing.assert_array_equal(history.u_h[i], reference_u_h(push_torque(robot, learner, t)))
+        assert np.any(history.u_h[i] != 0)
+        assert np.all(np.isnan(history.delta_phi[i])) and history.moved[i] == 0
+        assert history.updates[i] is None and history.replans[i] is None
+        np.testing.assert_array_equal(history.weights[i], INITIAL)
     np.testing.assert_array_equal(learner.weights, INITIAL)
     np.testing.assert_array_equal(learner.plan, plan0)
-    plans = learner.plans()
-    assert len(plans) == 1 and plans[0][0] == 0.0
-    np.testing.assert_array_equal(plans[0][1], plan0)
+    history = learner.history()
+    assert history.plan_t.tolist() == [0.0] and history.plans.shape == (1, *plan0.shape)
+    np.testing.assert_array_equal(history.plans[0], plan0)
     for before, t in zip(reference0, (3.9, 4.0, 6.0, 14.9), strict=True):
         for a, b in zip(before, learner.reference(t), strict=True):
             np.testing.assert_array_equal(a, b)
@@ -346,23 +346,24 @@ def test_a_downward_push_matches_the_numpy_reconstruction(robot, make, step):
     delta_phi = reference_phi(robot, xi_h) - reference_phi(robot, xi_r)
     assert delta_phi[1] < -0.1, "pushing down lowers the cup: the table feature (height) drops"
 
-    (record,) = learner.interactions()
-    assert record["t"] == t and record["moved"] == WINDOW
-    np.testing.assert_array_equal(record["u_h"], u_h)
-    np.testing.assert_allclose(record["delta_phi"], delta_phi, rtol=0, atol=1e-9)
+    history = learner.history()
+    assert len(history) == 1
+    i = 0
+    assert history.t[i] == t and history.moved[i] == WINDOW
+    np.testing.assert_array_equal(history.u_h[i], u_h)
+    np.testing.assert_allclose(history.delta_phi[i], delta_phi, rtol=0, atol=1e-9)
     weights = reference_update(INITIAL, delta_phi, step)
-    np.testing.assert_allclose(record["weights"], weights, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(history.weights[i], weights, rtol=0, atol=1e-12)
     np.testing.assert_allclose(learner.weights, weights, rtol=0, atol=1e-12)
     assert learner.weights[1] > INITIAL[1], "the table weight grows"
-    assert record["update"].clipped == (step == STEP)
-    assert record["update"].chosen is None
-    assert abs(record["update"].max_change - abs(weights[1] - INITIAL[1])) < 1e-12
+    assert history.updates[i].clipped == (step == STEP)
+    assert history.updates[i].chosen is None
+    assert abs(history.updates[i].max_change - abs(weights[1] - INITIAL[1])) < 1e-12
 
-    plans = learner.plans()
-    assert len(plans) == 2 and plans[1][0] == t
-    np.testing.assert_array_equal(plans[1][1], learner.plan)
+    assert history.plan_t.tolist() == [0.0, t]
+    np.testing.assert_array_equal(history.plans[1], learner.plan)
     assert np.abs(learner.plan - xi_r).max() > 1e-3, "the new weights give a new plan"
-    assert record["replan"].converged
+    assert history.replans[i].converged
 
 
 def test_the_confidence_rule_scales_the_step_by_the_numpy_relevance(robot, features, make):
@@ -382,12 +383,14 @@ def test_the_confidence_rule_scales_the_step_by_the_numpy_relevance(robot, featu
     relevance = reference_relevance(delta_phi, sensitivity, u_h)
     assert relevance[0] == 1.0 and 0.5 < relevance[1] < 0.99, f"relevance {relevance}"
 
-    (record,) = learner.interactions()
-    np.testing.assert_allclose(record["delta_phi"], delta_phi, rtol=0, atol=1e-9)
+    history = learner.history()
+    assert len(history) == 1
+    i = 0
+    np.testing.assert_allclose(history.delta_phi[i], delta_phi, rtol=0, atol=1e-9)
     weights = reference_update(INITIAL, delta_phi, step, relevance)
-    np.testing.assert_allclose(record["weights"], weights, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(history.weights[i], weights, rtol=0, atol=1e-12)
     np.testing.assert_allclose(learner.weights, weights, rtol=0, atol=1e-12)
-    assert not record["update"].clipped
+    assert not history.updates[i].clipped
     # The same push under the "all" rule moves the weight further, by 1/relevance.
     full = reference_update(INITIAL, delta_phi, step)
     assert abs((weights[1] - INITIAL[1]) - relevance[1] * (full[1] - INITIAL[1])) < 1e-12
@@ -405,21 +408,24 @@ def test_a_push_during_the_blend_deforms_the_blended_reference(robot, make):
     u_h = reference_u_h(tau)
     xi_h, _ = reference_deform(xi_r, t, u_h)
     delta_phi = reference_phi(robot, xi_h) - reference_phi(robot, xi_r)
-    record = learner.interactions()[-1]
-    np.testing.assert_allclose(record["delta_phi"], delta_phi, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(record["weights"], reference_update(w, delta_phi, [0.0, 0.5]), atol=1e-12)
-    assert [p[0] for p in learner.plans()] == [0.0, 4.0, 4.1]
+    history = learner.history()
+    i = -1
+    np.testing.assert_allclose(history.delta_phi[i], delta_phi, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(history.weights[i], reference_update(w, delta_phi, [0.0, 0.5]), atol=1e-12)
+    assert history.plan_t.tolist() == [0.0, 4.0, 4.1]
 
 
 def test_a_push_too_close_to_the_goal_is_recorded_but_moves_nothing(robot, make):
     learner = make()
     t = 13.0  # waypoint 26: fewer than 5 waypoints left before the goal (skip rule)
     assert learner.observe(t, push_torque(robot, learner, t)) == (True, True, False)
-    (record,) = learner.interactions()
-    assert record["moved"] == 0 and record["delta_phi"].shape == (0,)
-    assert record["update"] is None and record["replan"] is None
+    history = learner.history()
+    assert len(history) == 1
+    i = 0
+    assert history.moved[i] == 0 and np.all(np.isnan(history.delta_phi[i]))
+    assert history.updates[i] is None and history.replans[i] is None
     np.testing.assert_array_equal(learner.weights, INITIAL)
-    assert len(learner.plans()) == 1
+    assert history.plan_t.shape == (1,)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -467,38 +473,58 @@ def test_with_transition_speed_zero_the_reference_jumps_to_the_new_plan(robot, m
 # the history
 
 
-def test_history_shapes_and_keys(robot, make):
+def test_history_shapes_and_dtypes(robot, make):
     learner = make()
-    plans = learner.plans()
-    assert isinstance(plans, list) and len(plans) == 1
-    t0, plan0 = plans[0]
-    assert isinstance(t0, float) and t0 == 0.0
-    assert plan0.shape == (WAYPOINTS, 7) and plan0.dtype == np.float64
+    history = learner.history()
+    assert len(history) == 0 and history.plan_t.tolist() == [0.0]
+    assert history.plans.shape == (1, WAYPOINTS, 7) and history.plans.dtype == np.float64
+    assert history.u_h.shape == (0, 7) and history.weights.shape == (0, 2)
     for t in (4.0, 4.1):
         learner.observe(t, push_torque(robot, learner, t))
     learner.observe(4.2, np.zeros(7))  # sampled, no interaction: not recorded
-    records = learner.interactions()
-    assert len(records) == 2
-    for r, t in zip(records, (4.0, 4.1), strict=True):
-        assert set(r) == KEYS
-        assert isinstance(r["t"], float) and r["t"] == t
-        assert r["u_h"].shape == (7,) and r["delta_phi"].shape == (2,) and r["weights"].shape == (2,)
-        assert isinstance(r["moved"], int) and r["moved"] == WINDOW
-        assert isinstance(r["update"], phri.UpdateInfo)
-        assert isinstance(r["replan"], phri.TrajoptInfo)
-    np.testing.assert_array_equal(records[-1]["weights"], learner.weights)
-    plans = learner.plans()
-    assert [p[0] for p in plans] == [0.0, 4.0, 4.1]
-    assert all(p.shape == (WAYPOINTS, 7) for _, p in plans)
-    np.testing.assert_array_equal(plans[-1][1], learner.plan)
+    history = learner.history()
+    assert len(history) == 2 and repr(history) == "LearnerHistory(interactions=2, plans=3)"
+    assert history.t.dtype == np.float64 and history.t.tolist() == [4.0, 4.1]
+    assert history.u_h.shape == (2, 7) and history.delta_phi.shape == (2, 2) and history.weights.shape == (2, 2)
+    assert history.moved.tolist() == [WINDOW, WINDOW] and np.issubdtype(history.moved.dtype, np.integer)
+    assert all(isinstance(u, phri.UpdateInfo) for u in history.updates)
+    assert all(isinstance(r, phri.TrajoptInfo) for r in history.replans)
+    np.testing.assert_array_equal(history.weights[-1], learner.weights)
+    assert history.plan_t.tolist() == [0.0, 4.0, 4.1]
+    assert history.plans.shape == (3, WAYPOINTS, 7)
+    np.testing.assert_array_equal(history.plans[-1], learner.plan)
     # What the accessors return are copies.
     learner.plan[:] = 0.0
     learner.weights[:] = 7.0
-    plans[0][1][:] = 0.0
-    records[0]["weights"][:] = 7.0
+    history.plans[0][:] = 0.0
+    history.weights[0][:] = 7.0
     assert np.all(learner.plan[0] == PICK_BASIC) and np.all(learner.weights <= 1.0)
-    np.testing.assert_array_equal(learner.plans()[0][1][0], PICK_BASIC)
-    assert np.all(learner.interactions()[0]["weights"] <= 1.0)
+    np.testing.assert_array_equal(learner.history().plans[0][0], PICK_BASIC)
+    assert np.all(learner.history().weights[0] <= 1.0)
+
+
+def test_reference_writes_into_out_buffers(robot, make):
+    learner = make()
+    learner.observe(4.0, push_torque(robot, learner, 4.0))
+    out = (np.empty(7), np.empty(7), np.empty(7))
+    for t in (0.0, 4.05, 9.3):
+        got = learner.reference(t, out=out)
+        assert all(g is o for g, o in zip(got, out, strict=True))
+        for a, b in zip(out, learner.reference(t), strict=True):
+            np.testing.assert_array_equal(a, b)
+    bad = [
+        ((np.empty(6), np.empty(7), np.empty(7)), ex.ShapeError, "out[0]"),
+        ((np.empty(7), np.empty(14)[::2], np.empty(7)), ex.ShapeError, "out[1]"),
+        ((out[0], out[0], np.empty(7)), ex.InvalidParameterError, "out[1]"),
+    ]
+    readonly = np.empty(7)
+    readonly.flags.writeable = False
+    bad.append(((np.empty(7), np.empty(7), readonly), ex.InvalidParameterError, "out[2]"))
+    for buffers, error, name in bad:
+        with pytest.raises(error, match=re.escape(name)):
+            learner.reference(1.0, out=buffers)
+    with pytest.raises(TypeError):
+        learner.reference(1.0, out=(np.empty(7, dtype=np.float32), np.empty(7), np.empty(7)))
 
 
 def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot, optimizer):
@@ -508,7 +534,7 @@ def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot, optimizer):
     capped.observe(4.0, tau)
     full.observe(4.0, tau)
     assert capped.replan_pending, "a push from weight 0 needs more than 2 iterations"
-    assert capped.interactions()[0]["replan"].iterations <= 2
+    assert capped.history().replans[0].iterations <= 2
     ticks = 0
     while capped.replan_pending:
         ticks += 1
@@ -520,7 +546,7 @@ def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot, optimizer):
     capped_cost, full_cost = (optimizer.objective(x.plan, x.weights)[0] for x in (capped, full))
     assert abs(capped_cost - full_cost) <= 1e-8 * abs(full_cost)
     np.testing.assert_allclose(capped.plan, full.plan, rtol=0, atol=1e-4)
-    assert len(capped.plans()) == ticks + 2
+    assert len(capped.history().plan_t) == ticks + 2
 
 
 def test_seed_plans_shorten_the_replan_after_a_push(make, robot):
@@ -528,7 +554,7 @@ def test_seed_plans_shorten_the_replan_after_a_push(make, robot):
     tau = push_torque(robot, plain, 4.0)
     seeded.observe(4.0, tau)
     plain.observe(4.0, tau)
-    a, b = seeded.interactions()[0]["replan"], plain.interactions()[0]["replan"]
+    a, b = seeded.history().replans[0], plain.history().replans[0]
     assert a.converged and b.converged
     assert a.iterations < b.iterations and a.cost <= b.cost + 1e-9 * abs(b.cost)  # the solver's tolerance
     with pytest.raises(ex.InvalidParameterError, match="^seeds must be 0 .none. or at least 2"):

@@ -1,7 +1,7 @@
 # Type stubs of the native module (checked against it by `make lint`: mypy.stubtest).
 from collections.abc import Sequence
 from os import PathLike
-from typing import Any, ClassVar, Literal, final
+from typing import ClassVar, Literal, final
 
 import numpy as np
 import numpy.typing as npt
@@ -12,11 +12,13 @@ __all__ = [
     "ImpedanceController",
     "InteractionDetector",
     "Learner",
+    "LearnerHistory",
     "PlanLevels",
     "Robot",
     "TimedTrajectory",
     "TrajectoryOptimizer",
     "TrajoptInfo",
+    "UPDATE_RULES",
     "UpdateInfo",
     "WeightUpdate",
     "__version__",
@@ -27,6 +29,11 @@ __version__: str
 
 _Array = npt.ArrayLike
 _F64 = npt.NDArray[np.float64]
+_Triple = tuple[_F64, _F64, _F64]
+
+#: The weight-update rules' names (defined once, in the core's `UpdateRule::NAMES`).
+_UpdateRule = Literal["all", "max", "confidence"]
+UPDATE_RULES: tuple[_UpdateRule, ...]
 
 @final
 class Robot:
@@ -120,7 +127,7 @@ class WeightUpdate:
         *,
         learned: Sequence[bool] | None = None,
         ranges: _Array | None = None,
-        rule: Literal["all", "max", "confidence"] = "all",
+        rule: _UpdateRule = "all",
     ) -> WeightUpdate: ...
     @property
     def step(self) -> _F64: ...
@@ -133,7 +140,7 @@ class WeightUpdate:
     @property
     def ranges(self) -> _F64: ...
     @property
-    def rule(self) -> str: ...
+    def rule(self) -> _UpdateRule: ...
     def apply(
         self, weights: _Array, delta_phi: _Array, relevance: _Array | None = None
     ) -> tuple[_F64, UpdateInfo]: ...
@@ -341,7 +348,7 @@ class Learner:
         seeds: int = 0,
     ) -> Learner: ...
     def observe(self, t: float, tau_measured: _Array) -> tuple[bool, bool, bool]: ...
-    def reference(self, t: float) -> tuple[_F64, _F64, _F64]: ...
+    def reference(self, t: float, *, out: _Triple | None = None) -> _Triple: ...
     @property
     def weights(self) -> _F64: ...
     @property
@@ -350,5 +357,28 @@ class Learner:
     def learning(self) -> bool: ...
     @property
     def replan_pending(self) -> bool: ...
-    def interactions(self) -> list[dict[str, Any]]: ...
-    def plans(self) -> list[tuple[float, _F64]]: ...
+    def history(self) -> LearnerHistory: ...
+
+@final
+class LearnerHistory:
+    """A learner's record as arrays: a row per sampled interaction (M) or per plan (P)."""
+
+    @property
+    def t(self) -> _F64: ...
+    @property
+    def u_h(self) -> _F64: ...
+    @property
+    def delta_phi(self) -> _F64: ...
+    @property
+    def weights(self) -> _F64: ...
+    @property
+    def moved(self) -> npt.NDArray[np.uintp]: ...
+    @property
+    def updates(self) -> list[UpdateInfo | None]: ...
+    @property
+    def replans(self) -> list[TrajoptInfo | None]: ...
+    @property
+    def plan_t(self) -> _F64: ...
+    @property
+    def plans(self) -> _F64: ...
+    def __len__(self) -> int: ...

@@ -24,6 +24,32 @@ pub enum UpdateRule {
     Confidence,
 }
 
+impl UpdateRule {
+    /// Every rule, in the order of [`UpdateRule::NAMES`].
+    pub const ALL: [UpdateRule; 3] = [UpdateRule::All, UpdateRule::Max, UpdateRule::Confidence];
+    /// The rules' names, as task files, study files and the Python API spell them.
+    pub const NAMES: [&'static str; 3] = ["all", "max", "confidence"];
+
+    /// The rule's name.
+    pub fn name(self) -> &'static str {
+        let i = UpdateRule::ALL.iter().position(|r| *r == self).unwrap_or(0);
+        UpdateRule::NAMES[i]
+    }
+
+    /// The rule named `name`, or an UnknownName error naming `arg` and the known rules.
+    pub fn from_name(arg: &str, name: &str) -> Result<Self> {
+        match UpdateRule::NAMES.iter().position(|n| *n == name) {
+            Some(i) => Ok(UpdateRule::ALL[i]),
+            None => Err(PhriError::UnknownName {
+                arg: arg.into(),
+                kind: "update rule".into(),
+                name: name.into(),
+                known: UpdateRule::NAMES.join(", "),
+            }),
+        }
+    }
+}
+
 /// Step sizes, bounds and the rule; one entry per feature, in the feature set's order.
 #[derive(Debug, Clone)]
 pub struct UpdateParams {

@@ -1,10 +1,9 @@
 //! `phri.Learner`: Algorithm 1, the online learner that owns the plan and the weights.
 
-use numpy::{PyArray1, PyArray2, PyArrayMethods};
-use phri_core::learner::{Learner, LearnerParams, DEFAULT_TRANSITION_SPEED};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadwriteArray1, PyUntypedArrayMethods};
+use phri_core::learner::{History, Interaction, Learner, LearnerParams, DEFAULT_TRANSITION_SPEED};
 use phri_core::reference::Interpolation;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
 
 use crate::arrays::{vector, ArrayIn};
 use crate::deform::PyDeformation;
@@ -34,6 +33,19 @@ pub struct PyLearner {
 
 // The signature spells the default out so that Python's introspection shows it.
 const _: () = assert!(DEFAULT_TRANSITION_SPEED == 0.8);
+
+/// `a` as an exclusive view for writing n values: C-contiguous, writable, not aliasing another.
+fn writable<'py>(arg: &str, a: &Bound<'py, PyArray1<f64>>, n: usize) -> PyResult<PyReadwriteArray1<'py, f64>> {
+    if a.len() != n || !a.is_c_contiguous() {
+        return Err(error(Kind::Shape, format!("{arg} must be a C-contiguous float64 array of shape ({n},)")));
+    }
+    a.try_readwrite()
+        .map_err(|e| error(Kind::InvalidParameter, format!("{arg} must be a writable array distinct from the others ({e})")))
+}
+
+fn slice_mut<'a>(arg: &str, a: &'a mut PyReadwriteArray1<'_, f64>) -> PyResult<&'a mut [f64]> {
+    a.as_slice_mut().map_err(|_| error(Kind::Shape, format!("{arg} must be C-contiguous")))
+}
 
 type Triple<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
@@ -96,14 +108,23 @@ impl PyLearner {
         Ok((obs.sampled, obs.interacted, obs.replanned))
     }
 
-    /// The reference (q_R [rad], q̇_R [rad/s], q̈_R [rad/s²]) at time `t` [s].
-    fn reference<'py>(&self, py: Python<'py>, t: f64) -> PyResult<Triple<'py>> {
+    /// The reference (q_R [rad], q̇_R [rad/s], q̈_R [rad/s²]) at time `t` [s]. With `out=(q, qd,
+    /// qdd)`, three writable float64 arrays of shape (n,), it writes into them and returns them, so
+    /// a 1 kHz loop allocates nothing per tick.
+    #[pyo3(signature = (t, *, out = None))]
+    fn reference<'py>(&self, py: Python<'py>, t: f64, out: Option<Triple<'py>>) -> PyResult<Triple<'py>> {
         if !t.is_finite() {
             return Err(error(Kind::NonFinite, format!("t must be finite, got {t}")));
         }
-        let (mut q, mut qd, mut qdd) = (vec![0.0; self.n], vec![0.0; self.n], vec![0.0; self.n]);
-        self.learner.reference(t, &mut q, &mut qd, &mut qdd);
-        Ok((PyArray1::from_vec(py, q), PyArray1::from_vec(py, qd), PyArray1::from_vec(py, qdd)))
+        let out = match out {
+            Some(out) => out,
+            None => (PyArray1::zeros(py, self.n, false), PyArray1::zeros(py, self.n, false), PyArray1::zeros(py, self.n, false)),
+        };
+        let (mut q, mut qd, mut qdd) =
+            (writable("out[0]", &out.0, self.n)?, writable("out[1]", &out.1, self.n)?, writable("out[2]", &out.2, self.n)?);
+        self.learner.reference(t, slice_mut("out[0]", &mut q)?, slice_mut("out[1]", &mut qd)?, slice_mut("out[2]", &mut qdd)?);
+        drop((q, qd, qdd));
+        Ok(out)
     }
 
     /// Current cost weights w.
@@ -131,35 +152,77 @@ impl PyLearner {
         self.learner.params().learning
     }
 
-    /// Every recorded interaction, as dicts with keys t, u_h, delta_phi, weights, moved, update, replan.
-    fn interactions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        let list = PyList::empty(py);
-        for i in &self.learner.history().interactions {
-            let d = PyDict::new(py);
-            d.set_item("t", i.t)?;
-            d.set_item("u_h", PyArray1::from_slice(py, &i.u_h))?;
-            d.set_item("delta_phi", PyArray1::from_slice(py, &i.delta_phi))?;
-            d.set_item("weights", PyArray1::from_slice(py, &i.weights))?;
-            d.set_item("moved", i.moved)?;
-            d.set_item("update", i.update.map(PyUpdateInfo::from))?;
-            d.set_item("replan", i.replan.map(PyTrajoptInfo::from))?;
-            list.append(d)?;
-        }
-        Ok(list)
-    }
-
-    /// Every plan with the time it took effect [s]: a list of (t, plan (N, n)); the first is the
-    /// initial plan at t = 0.
-    fn plans<'py>(&self, py: Python<'py>) -> PyResult<Vec<(f64, Bound<'py, PyArray2<f64>>)>> {
-        self.learner
-            .history()
-            .plans
-            .iter()
-            .map(|(t, w)| Ok((*t, PyArray1::from_slice(py, w).reshape([w.len() / self.n, self.n])?)))
-            .collect()
+    /// What the learner recorded so far: every sampled interaction and every plan, as arrays.
+    fn history(&self, py: Python<'_>) -> PyResult<PyLearnerHistory> {
+        PyLearnerHistory::new(py, self.learner.history(), self.n, self.learner.weights().len())
     }
 
     fn __repr__(&self) -> String {
         format!("Learner(learning={}, weights={:?})", self.learner.params().learning, self.learner.weights())
+    }
+}
+
+/// A learner's record, as arrays with one row per sampled interaction (M) or per plan (P).
+///
+/// `t` (M,) the interaction's time [s]; `u_h` (M, n) the thresholded interaction torque u_H [N·m];
+/// `delta_phi` (M, K) Φ(ξ_H) − Φ(ξ_R), NaN where no deformation was made (`moved` = 0: not learning,
+/// or too close to the end); `weights` (M, K) the cost weights after the update; `moved` (M,) the
+/// waypoints the deformation moved; `updates` and `replans` (M,) what the update and the replan did
+/// (None where there was none). `plan_t` (P,) the time each plan took effect [s] and `plans`
+/// (P, N, n) the plans [rad]; the first is the initial plan at t = 0.
+#[pyclass(name = "LearnerHistory", module = "phri._phri", frozen, get_all)]
+pub struct PyLearnerHistory {
+    t: Py<PyArray1<f64>>,
+    u_h: Py<PyArray2<f64>>,
+    delta_phi: Py<PyArray2<f64>>,
+    weights: Py<PyArray2<f64>>,
+    moved: Py<PyArray1<usize>>,
+    updates: Vec<Option<PyUpdateInfo>>,
+    replans: Vec<Option<PyTrajoptInfo>>,
+    plan_t: Py<PyArray1<f64>>,
+    plans: Py<PyArray3<f64>>,
+}
+
+impl PyLearnerHistory {
+    fn new(py: Python<'_>, history: &History, n: usize, k: usize) -> PyResult<Self> {
+        let records = &history.interactions;
+        let m = records.len();
+        let rows = |width: usize, row: &dyn Fn(&Interaction) -> &[f64]| -> PyResult<Py<PyArray2<f64>>> {
+            let mut values = Vec::with_capacity(m * width);
+            for r in records {
+                let v = row(r);
+                if v.len() == width {
+                    values.extend_from_slice(v);
+                } else {
+                    values.extend(std::iter::repeat_n(f64::NAN, width));
+                }
+            }
+            Ok(PyArray1::from_vec(py, values).reshape([m, width])?.unbind())
+        };
+        let plans = &history.plans;
+        let waypoints = plans.first().map_or(0, |(_, w)| w.len() / n);
+        let plan_values: Vec<f64> = plans.iter().flat_map(|(_, w)| w.iter().copied()).collect();
+        Ok(PyLearnerHistory {
+            t: PyArray1::from_iter(py, records.iter().map(|r| r.t)).unbind(),
+            u_h: rows(n, &|r| &r.u_h)?,
+            delta_phi: rows(k, &|r| &r.delta_phi)?,
+            weights: rows(k, &|r| &r.weights)?,
+            moved: PyArray1::from_iter(py, records.iter().map(|r| r.moved)).unbind(),
+            updates: records.iter().map(|r| r.update.map(PyUpdateInfo::from)).collect(),
+            replans: records.iter().map(|r| r.replan.map(PyTrajoptInfo::from)).collect(),
+            plan_t: PyArray1::from_iter(py, plans.iter().map(|(t, _)| *t)).unbind(),
+            plans: PyArray1::from_vec(py, plan_values).reshape([plans.len(), waypoints, n])?.unbind(),
+        })
+    }
+}
+
+#[pymethods]
+impl PyLearnerHistory {
+    fn __len__(&self) -> usize {
+        self.updates.len()
+    }
+
+    fn __repr__(&self, py: Python<'_>) -> String {
+        format!("LearnerHistory(interactions={}, plans={})", self.updates.len(), self.plan_t.bind(py).len())
     }
 }

@@ -31,5 +31,7 @@ fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<trajopt::PyTrajoptInfo>()?;
     m.add_class::<trajopt::PyPlanLevels>()?;
     m.add_class::<learner::PyLearner>()?;
+    m.add_class::<learner::PyLearnerHistory>()?;
+    m.add("UPDATE_RULES", pyo3::types::PyTuple::new(m.py(), phri_core::update::UpdateRule::NAMES)?)?;
     Ok(())
 }

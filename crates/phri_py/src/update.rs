@@ -8,13 +8,6 @@ use pyo3::prelude::*;
 use crate::arrays::{matrix, shape_str, vector, ArrayIn};
 use crate::errors::{error, IntoPy, Kind};
 
-const RULES: [(&str, UpdateRule); 3] =
-    [("all", UpdateRule::All), ("max", UpdateRule::Max), ("confidence", UpdateRule::Confidence)];
-
-fn rule_name(rule: UpdateRule) -> &'static str {
-    RULES.iter().find(|(_, r)| *r == rule).map_or("all", |(name, _)| name)
-}
-
 /// A 1-D array (the core checks that the lengths agree); ±inf allowed (bounds), NaN left to the core.
 fn floats(arg: &str, a: &ArrayIn<'_>) -> PyResult<Vec<f64>> {
     if a.ndim() != 1 {
@@ -25,7 +18,7 @@ fn floats(arg: &str, a: &ArrayIn<'_>) -> PyResult<Vec<f64>> {
 
 /// What one update did.
 #[pyclass(name = "UpdateInfo", module = "phri._phri", frozen, eq)]
-#[derive(PartialEq)]
+#[derive(PartialEq, Clone)]
 pub struct PyUpdateInfo {
     info: update::UpdateInfo,
 }
@@ -86,10 +79,7 @@ impl PyWeightUpdate {
         ranges: Option<ArrayIn<'_>>,
         rule: &str,
     ) -> PyResult<Self> {
-        let rule = RULES.iter().find(|(name, _)| *name == rule).map(|(_, r)| *r).ok_or_else(|| {
-            let allowed = RULES.iter().map(|(n, _)| format!("'{n}'")).collect::<Vec<_>>().join(", ");
-            error(Kind::InvalidParameter, format!("rule must be one of {allowed}, got '{rule}'"))
-        })?;
+        let rule = UpdateRule::from_name("rule", rule).py_err()?;
         let step = floats("step", &step)?;
         let k = step.len();
         let params = UpdateParams {
@@ -139,7 +129,7 @@ impl PyWeightUpdate {
     /// "all", "max" or "confidence".
     #[getter]
     fn rule(&self) -> &'static str {
-        rule_name(self.update.params().rule)
+        self.update.params().rule.name()
     }
 
     /// One update: returns the new weights (a fresh array) and what the update did. `relevance`
@@ -173,7 +163,7 @@ impl PyWeightUpdate {
 
     fn __repr__(&self) -> String {
         let p = self.update.params();
-        format!("WeightUpdate(step={:?}, lower={:?}, upper={:?}, rule='{}')", p.step, p.lower, p.upper, rule_name(p.rule))
+        format!("WeightUpdate(step={:?}, lower={:?}, upper={:?}, rule='{}')", p.step, p.lower, p.upper, p.rule.name())
     }
 }
 

@@ -361,9 +361,8 @@ def run_episode(
                 world.step(tau, push[0], push[1])
     except BaseException as e:  # noqa: BLE001 - the log so far is written first, then it is re-raised
         error = e
-    interactions = learner.interactions()
-    u = np.array([i["u_h"] for i in interactions]).reshape(-1, model.nq)
-    plans = learner.plans()
+    history = learner.history()
+    u = history.u_h
     # The executed path at the plan's waypoint times, scored with the same features.
     n_wp = task.waypoints
     idx = np.minimum(
@@ -376,7 +375,7 @@ def run_episode(
         task=task.name,
         strategy=config.strategy,
         effort=float(np.abs(u).sum()),
-        interaction_time=len(interactions) / config.sample_rate,
+        interaction_time=len(history) / config.sample_rate,
         cost=float(phi[task.task_index]),
         desired_cost=planner.desired_cost,
         initial_weights=initial_weights,
@@ -389,15 +388,15 @@ def run_episode(
         frames=frames,
     )
     if log_path is not None:
-        weights_t = np.array([0.0] + [i["t"] for i in interactions])
-        weights = np.array([initial_weights] + [i["weights"] for i in interactions])
+        weights_t = np.concatenate([[0.0], history.t])
+        weights = np.vstack([initial_weights, history.weights])
         result.log = _write_log(
             Path(log_path),
             {
                 "t": log_t[:row], **{k: v[:row] for k, v in log.items()},
-                "interaction_t": np.array([i["t"] for i in interactions]), "interaction_u_h": u,
+                "interaction_t": history.t, "interaction_u_h": u,
                 "weights_t": weights_t, "weights": weights,
-                "plan_t": np.array([p[0] for p in plans]), "plans": np.array([p[1] for p in plans]),
+                "plan_t": history.plan_t, "plans": history.plans,
                 "desired": planner.desired, "feature_names": np.array(task.feature_names),
             },
         )  # fmt: skip

@@ -76,7 +76,7 @@ use nalgebra::Matrix6xX;
 use crate::block_tridiagonal::{BlockCholesky, BlockTridiagonal, Damping};
 use crate::data::RobotData;
 use crate::error::{check_finite, check_vector, PhriError, Result};
-use crate::features::{FeatureSet, Pieces};
+use crate::features::{FeatureSet, Pieces, SecondOrder};
 use crate::kinematics::position_hessian;
 use crate::model::FrameId;
 
@@ -517,15 +517,15 @@ impl TrajectoryOptimizer {
         if with_hessian {
             model.exact = self.exact_curvature;
         }
-        let mut cost = features.weighted_cost_unchecked(
-            traj,
-            self.waypoints,
-            weights,
-            Some(grad),
-            if with_hessian { Some(&mut model.hess) } else { None },
-            if with_hessian { Some(&mut model.pieces) } else { None },
-            self.params.smoothing,
-        );
+        let mut cost = if with_hessian {
+            model.hess.clear();
+            let hess = &mut model.hess;
+            let second_order =
+                SecondOrder { segment_hessian: &mut |i, h| hess.add_segment(i, h.matrix()), pieces: Some(&mut model.pieces) };
+            features.weighted_cost_unchecked(traj, self.waypoints, weights, Some(grad), Some(second_order), self.params.smoothing)
+        } else {
+            features.weighted_cost_unchecked(traj, self.waypoints, weights, Some(grad), None, self.params.smoothing)
+        };
         if with_hessian {
             model.pen_grad.fill(0.0);
         }

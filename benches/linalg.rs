@@ -21,8 +21,8 @@ use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Mat, Side};
-use phri_core::block_tridiagonal::{BlockCholesky, BlockTridiagonal, Damping};
 use phri_core::deform::{DeformParams, Deformation};
+use phri_core::trajopt::block_tridiagonal::{BlockCholesky, BlockTridiagonal, Damping};
 
 const NQ: usize = 7;
 

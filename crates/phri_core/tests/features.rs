@@ -5,8 +5,8 @@ mod common;
 use std::sync::Arc;
 
 use common::{deg, jaco2, within_limits};
-use phri_core::block_tridiagonal::BlockTridiagonal;
 use phri_core::features::{FeatureSet, SceneParams, SegmentHessian, BUILTIN_FEATURES};
+use phri_core::trajopt::block_tridiagonal::BlockTridiagonal;
 use proptest::prelude::*;
 
 fn feature_set(names: &[&str]) -> FeatureSet {

@@ -29,6 +29,11 @@ impl Pieces {
         Pieces { n, segment: 0, list: Vec::new(), a: Vec::new() }
     }
 
+    /// Number of joints n (each piece's a has n entries).
+    pub fn dof(&self) -> usize {
+        self.n
+    }
+
     /// Number of pieces.
     pub fn len(&self) -> usize {
         self.list.len()

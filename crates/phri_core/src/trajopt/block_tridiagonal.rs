@@ -1,7 +1,7 @@
 //! Symmetric block-tridiagonal matrices over the waypoints of a trajectory, and their block
 //! Cholesky factorisation: every feature and penalty of the trajectory cost couples at most two
 //! consecutive waypoints, so its Hessian has this shape, and the Newton optimiser
-//! ([`crate::trajopt`]) solves with it in O(N·n³).
+//! ([`crate::trajopt`]) solves with it in O(N·n³). Pure linear algebra: it knows nothing of features.
 
 /// A symmetric block-tridiagonal matrix over the waypoints of a trajectory: one n × n block per
 /// waypoint on the diagonal and one per consecutive pair (i, i+1) above it, row-major.

@@ -1,6 +1,6 @@
 //! phri's two hand-written banded kernels against faer, the maintained library the project would
-//! otherwise use, on the same matrices in one run (conventions: "write a kernel by hand only where
-//! you measured it faster").
+//! otherwise use, on the same matrices in one run: a kernel is hand-written only where it is
+//! measurably faster.
 //!
 //! - The Newton optimiser's system: a symmetric positive definite block-tridiagonal matrix of
 //!   N − 2 blocks of 7 × 7 (N = 31 and 100 waypoints). phri: `BlockCholesky` (block Thomas),

@@ -44,7 +44,7 @@ pub fn place_higher() -> [f64; 7] {
     deg([210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4])
 }
 
-/// One of the study's four tasks (original_system.md; python/phri/tasks/*.toml).
+/// One of the study's four tasks (python/phri/tasks/*.toml, after the authors' published code).
 #[derive(Debug, Clone, Copy)]
 pub struct StudyTask {
     /// Task name, which is also the name of its learned feature.

@@ -1,6 +1,6 @@
 //! phri's two hand-written banded kernels against faer, the maintained library the project would
-//! otherwise use, on the same matrices in one run (conventions: "write a kernel by hand only where
-//! you measured it faster").
+//! otherwise use, on the same matrices in one run: a kernel is hand-written only where it is
+//! measurably faster.
 //!
 //! - The Newton optimiser's system: a symmetric positive definite block-tridiagonal matrix of
 //!   N − 2 blocks of 7 × 7 (N = 31 and 100 waypoints). phri: `BlockCholesky` (block Thomas),
@@ -21,8 +21,8 @@ use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Mat, Side};
-use phri_core::block_tridiagonal::{BlockCholesky, BlockTridiagonal, Damping};
 use phri_core::deform::{DeformParams, Deformation};
+use phri_core::trajopt::block_tridiagonal::{BlockCholesky, BlockTridiagonal, Damping};
 
 const NQ: usize = 7;
 

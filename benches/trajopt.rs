@@ -2,7 +2,7 @@
 //! the study's planner (python/phri/sim/episode.py `Planner`: features ["efficiency", task], tool
 //! point and link_7 clearance, max_step from the velocity limits; see `phri_benches::study_planner`).
 //!
-//! Targets (issue 4), median and p99:
+//! Targets, median and p99:
 //! - warm replan after one correction, N = 31: ≤ 1 ms — from the converged plan for task weight 0
 //!   (with its coarse plans, `solve_levels`, as the learner replans), replan for the weight one
 //!   update step later (0 → 0.3 × the true weight);

@@ -8,7 +8,7 @@ clearance penalty ρ·Σ max(0, z_min − z)² of the tool point and link_7 at e
 
 Solvers, all from the same straight line, with the joint limits as bounds:
 
-* phri: `phri.TrajectoryOptimizer` (Newton, the default), and its earlier L-BFGS (`method="lbfgs"`).
+* phri: `phri.TrajectoryOptimizer` (projected Newton).
 * scipy L-BFGS-B on `ReferenceObjective`, an independent numpy implementation of the same cost and
   gradient whose kinematics (poses and Jacobians of the sample points) come either from phri's
   batched `Robot.frame_pose`/`Robot.jacobian` ("scipy+phri-kin") or from pinocchio, one call per
@@ -107,7 +107,7 @@ def study_problem(name: str, waypoints: int | None = None, weights: np.ndarray |
 
 
 def phri_optimizer(problem: Problem, **kwargs) -> phri.TrajectoryOptimizer:
-    """phri's optimiser for the problem (keyword arguments override the defaults, e.g. method)."""
+    """phri's optimiser for the problem (keyword arguments override the defaults, e.g. coarsening)."""
     robot = phri.Robot.jaco2()
     features = phri.Features(
         robot, list(problem.names), laptop_center=problem.laptop_center, human_center=problem.human_center,
@@ -292,8 +292,8 @@ class ReferenceObjective:
 # solvers: each returns (plan (N, 7), final cost, evaluations)
 
 
-def solve_phri(problem: Problem, method: str = "newton") -> Callable[[], tuple[np.ndarray, float, int]]:
-    opt = phri_optimizer(problem, method=method)
+def solve_phri(problem: Problem) -> Callable[[], tuple[np.ndarray, float, int]]:
+    opt = phri_optimizer(problem)
 
     def run() -> tuple[np.ndarray, float, int]:
         plan, info = opt.solve(problem.weights, problem.start, problem.goal)
@@ -437,8 +437,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.tasks.split(","):
         problem = study_problem(name, args.waypoints)
         runs: list[tuple[str, Callable]] = [
-            ("phri newton", solve_phri(problem, "newton")),
-            ("phri lbfgs", solve_phri(problem, "lbfgs")),
+            ("phri newton", solve_phri(problem)),
             ("scipy+phri-kin", solve_scipy(problem)),
         ]
         if have_pin:

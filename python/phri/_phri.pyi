@@ -292,11 +292,9 @@ class TrajectoryOptimizer:
         max_time: float | None = None,
         gradient_tolerance: float = 1e-6,
         relative_tolerance: float = 1e-9,
-        memory: int = 20,
         smoothing: float = 0.05,
         max_step: _Array | None = None,
         step_weight: float = 1e3,
-        method: Literal["newton", "lbfgs"] = "newton",
         kinematic_curvature: Literal["gauss-newton", "settled", "exact"] = "settled",
         coarsening: int = 3,
         coarsest: int = 8,
@@ -305,8 +303,6 @@ class TrajectoryOptimizer:
     def waypoints(self) -> int: ...
     @property
     def levels(self) -> list[int]: ...
-    @property
-    def method(self) -> Literal["newton", "lbfgs"]: ...
     def objective(self, xi: _Array, weights: _Array) -> tuple[float, float, _F64]: ...
     def solve(
         self, weights: _Array, start: _Array, goal: _Array, init: _Array | None = None

@@ -1,5 +1,5 @@
-//! Deciding whether a measured joint torque is a person pushing (original_system.md: a sample is an
-//! interaction when any joint exceeds its threshold; components below threshold are zeroed).
+//! Deciding whether a measured joint torque is a person pushing (as in the authors' published code: a
+//! sample is an interaction when any joint exceeds its threshold; components below threshold are zeroed).
 
 use crate::error::{check_finite, check_vector, PhriError, Result};
 

@@ -124,8 +124,10 @@ pub struct Learner {
     replan_pending: bool,
     /// Converged plans on a weight grid (`LearnerParams::seeds`).
     seeds: Seeds,
+    /// What happened, for logs and plots.
+    history: History,
+    // Scratch of one tick, sized once so that a tick allocates nothing (tests/alloc.rs).
     seed_grad: Vec<f64>,
-    // Workspaces.
     tracked: Vec<f64>,
     rates: Vec<f64>,
     deformed: Vec<f64>,
@@ -137,7 +139,6 @@ pub struct Learner {
     sensitivity: Vec<f64>,
     relevance: Vec<f64>,
     u_h: Vec<f64>,
-    history: History,
 }
 
 impl Learner {

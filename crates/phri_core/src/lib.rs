@@ -9,7 +9,6 @@
 // Kernels index several parallel per-joint slices in one loop; iterator zips would obscure them.
 #![allow(clippy::needless_range_loop)]
 
-pub mod block_tridiagonal;
 pub mod data;
 pub mod deform;
 pub mod dynamics;

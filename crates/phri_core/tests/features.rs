@@ -5,8 +5,8 @@ mod common;
 use std::sync::Arc;
 
 use common::{deg, jaco2, within_limits};
-use phri_core::block_tridiagonal::BlockTridiagonal;
-use phri_core::features::{FeatureSet, SceneParams, BUILTIN_FEATURES};
+use phri_core::features::{FeatureSet, SceneParams, SegmentHessian, BUILTIN_FEATURES};
+use phri_core::trajopt::block_tridiagonal::BlockTridiagonal;
 use proptest::prelude::*;
 
 fn feature_set(names: &[&str]) -> FeatureSet {
@@ -142,13 +142,19 @@ fn gradient_difference(fs: &mut FeatureSet, xi: &[f64], w: &[f64], smoothing: f6
     let (mut gp, mut gm) = (vec![0.0; xi.len()], vec![0.0; xi.len()]);
     let mut x = xi.to_vec();
     x[v] += h;
-    fs.weighted_cost_curvature(&x, w, smoothing, &mut gp, &mut hess).unwrap();
+    fs.weighted_cost_curvature(&x, w, smoothing, &mut gp, filling(&mut hess)).unwrap();
     x[v] -= 2.0 * h;
-    fs.weighted_cost_curvature(&x, w, smoothing, &mut gm, &mut hess).unwrap();
+    fs.weighted_cost_curvature(&x, w, smoothing, &mut gm, filling(&mut hess)).unwrap();
     gp.iter().zip(&gm).map(|(a, b)| (a - b) / (2.0 * h)).collect()
 }
 
 /// Entry (r, c) of a block-tridiagonal matrix over N × n variables (0 outside the band).
+/// A sink for `weighted_cost_curvature` that fills `hess` (cleared first) with the segments' blocks.
+fn filling(hess: &mut BlockTridiagonal) -> impl FnMut(usize, &SegmentHessian) + '_ {
+    hess.clear();
+    move |i, h| hess.add_segment(i, h.matrix())
+}
+
 fn entry(h: &BlockTridiagonal, r: usize, c: usize) -> f64 {
     let n = h.dof();
     let (br, bc) = (r / n, c / n);
@@ -172,7 +178,7 @@ fn second_derivatives_of_smooth_features_match_finite_differences() {
         let xi = trajectory(&within_limits(&model, &u[..7]), &within_limits(&model, &u[7..]), 5, 0.4);
         let mut hess = BlockTridiagonal::new(7, 5);
         let mut grad = vec![0.0; xi.len()];
-        fs.weighted_cost_curvature(&xi, &w, 0.0, &mut grad, &mut hess).unwrap();
+        fs.weighted_cost_curvature(&xi, &w, 0.0, &mut grad, filling(&mut hess)).unwrap();
         for v in 0..xi.len() {
             let fd = gradient_difference(&mut fs, &xi, &w, 0.0, v, 1e-6);
             for (r, fd) in fd.iter().enumerate() {
@@ -222,7 +228,7 @@ fn hinge_curvature_is_exact_inside_the_quadratic_zone() {
     }
     let mut hess = BlockTridiagonal::new(7, 4);
     let mut grad = vec![0.0; xi.len()];
-    fs.weighted_cost_curvature(&xi, &[1.0], delta, &mut grad, &mut hess).unwrap();
+    fs.weighted_cost_curvature(&xi, &[1.0], delta, &mut grad, filling(&mut hess)).unwrap();
     assert!((0..xi.len()).any(|r| entry(&hess, r, r).abs() > 1e-3), "no sample inside the circle");
     for v in 7..21 {
         let fd = gradient_difference(&mut fs, &xi, &[1.0], delta, v, 1e-6);

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use common::{deg, jaco2};
 use phri_core::features::{FeatureSet, SceneParams};
-use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptMethod, TrajoptParams};
+use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
 use phri_core::PhriError;
 
 const PICK_BASIC: [f64; 7] = [104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8];
@@ -99,7 +99,7 @@ fn bad_problems_are_typed_errors() {
 
 /// The study's planner (python/phri/sim/episode.py): tool point 0.1016 m and link_7 0.06 m above the
 /// table top, max_step = 0.5 × velocity limit × spacing.
-fn study_setup(feature: &str, waypoints: usize, method: TrajoptMethod) -> (FeatureSet, TrajectoryOptimizer) {
+fn study_setup(feature: &str, waypoints: usize) -> (FeatureSet, TrajectoryOptimizer) {
     let model = Arc::new(jaco2());
     let l7 = model.frame_id("j2s7s300_link_7").unwrap();
     let ee = model.frame_id("j2s7s300_end_effector").unwrap();
@@ -111,7 +111,6 @@ fn study_setup(feature: &str, waypoints: usize, method: TrajoptMethod) -> (Featu
             Clearance { frame: l7, min_z: -0.1016 + 0.06, weight: 1e3 },
         ],
         max_step: model.velocity_limits().iter().map(|v| 0.5 * v * spacing).collect(),
-        method,
         ..Default::default()
     };
     let opt = TrajectoryOptimizer::new(&fs, waypoints, params).unwrap();
@@ -122,7 +121,7 @@ fn study_setup(feature: &str, waypoints: usize, method: TrajoptMethod) -> (Featu
 fn the_study_planner_converges_on_every_task_at_31_and_100_waypoints() {
     for waypoints in [31, 100] {
         for (feature, start, goal, weight) in tasks() {
-            let (mut fs, mut opt) = study_setup(feature, waypoints, TrajoptMethod::Newton);
+            let (mut fs, mut opt) = study_setup(feature, waypoints);
             let (start, goal) = (deg(start), deg(goal));
             let mut plan0 = vec![0.0; waypoints * 7];
             let info0 = opt.solve(&mut fs, &[1.0, 0.0], &start, &goal, None, &mut plan0).unwrap();
@@ -151,16 +150,12 @@ fn the_study_planner_converges_on_every_task_at_31_and_100_waypoints() {
 }
 
 #[test]
-fn newton_reaches_the_cost_of_lbfgs_and_the_objective_gradient_is_right() {
+fn the_objective_gradient_is_right_near_the_plan() {
     for (feature, start, goal, weight) in tasks() {
         let (start, goal) = (deg(start), deg(goal));
-        let (mut fs, mut newton) = study_setup(feature, 31, TrajoptMethod::Newton);
-        let (_, mut lbfgs) = study_setup(feature, 31, TrajoptMethod::Lbfgs);
-        let (mut a, mut b) = (vec![0.0; 31 * 7], vec![0.0; 31 * 7]);
-        let na = newton.solve(&mut fs, &[1.0, weight], &start, &goal, None, &mut a).unwrap();
-        let nb = lbfgs.solve(&mut fs, &[1.0, weight], &start, &goal, None, &mut b).unwrap();
-        eprintln!("{feature}: newton {na:?}\n        lbfgs {nb:?}");
-        assert!(na.cost <= nb.cost + 1e-6, "{feature}: newton {} vs lbfgs {}", na.cost, nb.cost);
+        let (mut fs, mut newton) = study_setup(feature, 31);
+        let mut a = vec![0.0; 31 * 7];
+        newton.solve(&mut fs, &[1.0, weight], &start, &goal, None, &mut a).unwrap();
         // Finite differences of the objective along a few coordinates of a perturbed plan.
         let x: Vec<f64> = a.iter().enumerate().map(|(k, v)| v + 0.01 * ((k as f64) * 0.7).sin()).collect();
         let mut x = x;
@@ -189,7 +184,7 @@ fn warm_replans_after_a_weight_step_are_deterministic_and_stationary() {
     // plan for weight 0 to one of 0.2479), so each is checked for being a converged local optimum.
     for (feature, start, goal, weight) in tasks() {
         let (start, goal) = (deg(start), deg(goal));
-        let (mut fs, mut opt) = study_setup(feature, 31, TrajoptMethod::Newton);
+        let (mut fs, mut opt) = study_setup(feature, 31);
         let mut base = opt.plan_levels();
         opt.solve_levels(&mut fs, &[1.0, 0.0], &start, &goal, None, &mut base).unwrap();
         let w = [1.0, 0.3 * weight];
@@ -219,7 +214,7 @@ fn coarse_levels_give_the_single_level_optimum_in_fewer_iterations() {
     for waypoints in [31, 100] {
         for (feature, start, goal, weight) in tasks() {
             let (start, goal) = (deg(start), deg(goal));
-            let (mut fs, mut opt) = study_setup(feature, waypoints, TrajoptMethod::Newton);
+            let (mut fs, mut opt) = study_setup(feature, waypoints);
             let single_params = TrajoptParams { coarsening: 0, ..opt.params().clone() };
             let mut single = TrajectoryOptimizer::new(&fs, waypoints, single_params).unwrap();
             assert_eq!(single.plan_levels().len(), 1);
@@ -246,8 +241,8 @@ fn coarse_levels_give_the_single_level_optimum_in_fewer_iterations() {
 #[test]
 fn plan_levels_of_the_wrong_shape_are_typed_errors() {
     let (start, goal) = (deg(PICK_BASIC), deg(PLACE_LOWER));
-    let (mut fs, mut opt) = study_setup("table", 31, TrajoptMethod::Newton);
-    let (_, other) = study_setup("table", 100, TrajoptMethod::Newton);
+    let (mut fs, mut opt) = study_setup("table", 31);
+    let (_, other) = study_setup("table", 100);
     let mut wrong = other.plan_levels();
     let mut out = opt.plan_levels();
     let err = opt.solve_levels(&mut fs, &[1.0, 1.0], &start, &goal, Some(&wrong), &mut out).unwrap_err();
@@ -299,7 +294,7 @@ fn plans_pressed_against_the_joint_limits_converge_whole_or_a_few_iterations_at_
 fn only_the_same_problem_resumes_and_a_cold_solve_reports_its_own_convergence() {
     let (start, goal) = (deg(PICK_SHELF), deg(PLACE_LOWER));
     let other_goal = deg(PLACE_HIGHER);
-    let (mut fs, mut opt) = study_setup("coffee", 31, TrajoptMethod::Newton);
+    let (mut fs, mut opt) = study_setup("coffee", 31);
     let mut capped = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { max_iterations: 2, ..opt.params().clone() }).unwrap();
     let mut levels = opt.plan_levels();
     opt.solve_levels(&mut fs, &[1.0, 1.0], &start, &goal, None, &mut levels).unwrap(); // ends settled

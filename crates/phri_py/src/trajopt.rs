@@ -4,54 +4,86 @@ use std::time::Duration;
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use phri_core::features::FeatureSet;
-use phri_core::trajopt::{
-    Clearance, KinematicCurvature, PlanLevels, TrajectoryOptimizer, TrajoptInfo, TrajoptMethod, TrajoptParams,
-};
+use phri_core::trajopt::{Clearance, KinematicCurvature, PlanLevels, TrajectoryOptimizer, TrajoptInfo, TrajoptParams};
 use pyo3::prelude::*;
 
 use crate::arrays::{matrix, vector, ArrayIn};
 use crate::errors::{error, IntoPy, Kind};
 use crate::features::PyFeatures;
 
-/// What a solve did: iterations on the plan's waypoints and on the coarse levels, cost evaluations,
-/// final cost and penalty, the largest clearance violation [m], whether a tolerance was met, and
-/// the wall time [s].
-#[pyclass(name = "TrajoptInfo", module = "phri._phri", frozen, get_all)]
+/// What a solve did (the core's `TrajoptInfo`, read-only).
+#[pyclass(name = "TrajoptInfo", module = "phri._phri", frozen)]
 #[derive(Clone)]
-pub struct PyTrajoptInfo {
-    pub iterations: usize,
-    pub coarse_iterations: usize,
-    pub evaluations: usize,
-    pub cost: f64,
-    pub penalty: f64,
-    pub max_violation: f64,
-    pub max_step_excess: f64,
-    pub converged: bool,
-    pub seconds: f64,
-}
+pub struct PyTrajoptInfo(pub TrajoptInfo);
 
 impl From<TrajoptInfo> for PyTrajoptInfo {
-    fn from(i: TrajoptInfo) -> Self {
-        PyTrajoptInfo {
-            iterations: i.iterations,
-            coarse_iterations: i.coarse_iterations,
-            evaluations: i.evaluations,
-            cost: i.cost,
-            penalty: i.penalty,
-            max_violation: i.max_violation,
-            max_step_excess: i.max_step_excess,
-            converged: i.converged,
-            seconds: i.seconds,
-        }
+    fn from(info: TrajoptInfo) -> Self {
+        PyTrajoptInfo(info)
     }
 }
 
 #[pymethods]
 impl PyTrajoptInfo {
+    /// Newton iterations on the plan's waypoints [count].
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.0.iterations
+    }
+
+    /// Newton iterations on the coarse levels, all together (0 without multiresolution) [count].
+    #[getter]
+    fn coarse_iterations(&self) -> usize {
+        self.0.coarse_iterations
+    }
+
+    /// Cost evaluations on the plan's waypoints, each one Φ, ∇Φ and ∇²Φ [count].
+    #[getter]
+    fn evaluations(&self) -> usize {
+        self.0.evaluations
+    }
+
+    /// Final cost w·Φ + penalty of the plan [cost].
+    #[getter]
+    fn cost(&self) -> f64 {
+        self.0.cost
+    }
+
+    /// Final penalty part of the cost (clearance and max_step) [cost].
+    #[getter]
+    fn penalty(&self) -> f64 {
+        self.0.penalty
+    }
+
+    /// Largest clearance violation of the plan [m] (0 when satisfied or unused).
+    #[getter]
+    fn max_violation(&self) -> f64 {
+        self.0.max_violation
+    }
+
+    /// Largest joint step beyond `max_step` between consecutive waypoints [rad] (0 without
+    /// max_step); much more than gradient/(2·step_weight) means the goal is too far for the duration.
+    #[getter]
+    fn max_step_excess(&self) -> f64 {
+        self.0.max_step_excess
+    }
+
+    /// Whether the solve met a tolerance (rather than an iteration or time cap).
+    #[getter]
+    fn converged(&self) -> bool {
+        self.0.converged
+    }
+
+    /// Wall time of the solve [s].
+    #[getter]
+    fn seconds(&self) -> f64 {
+        self.0.seconds
+    }
+
     fn __repr__(&self) -> String {
+        let i = &self.0;
         format!(
             "TrajoptInfo(iterations={}, coarse_iterations={}, evaluations={}, cost={:.6}, penalty={:.3e}, max_violation={:.3e}, max_step_excess={:.3e}, converged={}, seconds={:.3e})",
-            self.iterations, self.coarse_iterations, self.evaluations, self.cost, self.penalty, self.max_violation, self.max_step_excess, self.converged, self.seconds
+            i.iterations, i.coarse_iterations, i.evaluations, i.cost, i.penalty, i.max_violation, i.max_step_excess, i.converged, i.seconds
         )
     }
 }
@@ -59,9 +91,8 @@ impl PyTrajoptInfo {
 /// Trajectory optimisation over `waypoints` rows with fixed start and goal, joint limits as
 /// bounds, `clearance` = [(frame, min_z [m]), ...] keeping frame origins above a height, and
 /// `max_step` [rad] bounding each joint's move between waypoints (velocity limit × spacing); both
-/// are quadratic penalties (weights `clearance_weight`, `step_weight`). `method` is "newton"
-/// (projected Newton on the block-tridiagonal Hessian, the default) or "lbfgs" (the earlier
-/// projected L-BFGS; `memory` applies to it only). `kinematic_curvature` says how the Newton model
+/// are quadratic penalties (weights `clearance_weight`, `step_weight`). The solver is projected
+/// Newton on the block-tridiagonal Hessian. `kinematic_curvature` says how the Newton model
 /// treats the second derivatives of the kinematics of the table, coffee and origin features and
 /// the clearance: "gauss-newton" leaves them out, "exact" includes them, "settled" (the default)
 /// leaves them out until the model's active set settles and includes them from then on.
@@ -96,9 +127,8 @@ impl PyTrajectoryOptimizer {
     #[new]
     #[pyo3(signature = (
         features, waypoints = 31, *, clearance = None, clearance_weight = 1e3, max_iterations = 500,
-        max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-9, memory = 20, smoothing = 0.05,
-        max_step = None, step_weight = 1e3, method = "newton", kinematic_curvature = "settled", coarsening = 3,
-        coarsest = 8
+        max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-9, smoothing = 0.05,
+        max_step = None, step_weight = 1e3, kinematic_curvature = "settled", coarsening = 3, coarsest = 8
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -110,11 +140,9 @@ impl PyTrajectoryOptimizer {
         max_time: Option<f64>,
         gradient_tolerance: f64,
         relative_tolerance: f64,
-        memory: usize,
         smoothing: f64,
         max_step: Option<ArrayIn<'_>>,
         step_weight: f64,
-        method: &str,
         kinematic_curvature: &str,
         coarsening: usize,
         coarsest: usize,
@@ -135,13 +163,6 @@ impl PyTrajectoryOptimizer {
             Some(a) => vector("max_step", a, model.nq())?.into_owned(),
             None => Vec::new(),
         };
-        let method = match method {
-            "newton" => TrajoptMethod::Newton,
-            "lbfgs" => TrajoptMethod::Lbfgs,
-            other => {
-                return Err(error(Kind::InvalidParameter, format!("method must be 'newton' or 'lbfgs', got {other:?}")));
-            }
-        };
         let kinematic_curvature = match kinematic_curvature {
             "gauss-newton" => KinematicCurvature::GaussNewton,
             "settled" => KinematicCurvature::Settled,
@@ -158,12 +179,10 @@ impl PyTrajectoryOptimizer {
             max_time,
             gradient_tolerance,
             relative_tolerance,
-            memory,
             smoothing,
             clearance,
             max_step,
             step_weight,
-            method,
             kinematic_curvature,
             coarsening,
             coarsest,
@@ -183,15 +202,6 @@ impl PyTrajectoryOptimizer {
     fn levels(&self) -> Vec<usize> {
         let levels = self.optimizer.plan_levels();
         (0..levels.len()).map(|k| levels.level(k).len() / self.features.model().nq()).collect()
-    }
-
-    /// The algorithm: "newton" or "lbfgs".
-    #[getter]
-    fn method(&self) -> &'static str {
-        match self.optimizer.params().method {
-            TrajoptMethod::Newton => "newton",
-            TrajoptMethod::Lbfgs => "lbfgs",
-        }
     }
 
     /// The cost `solve` minimises at `xi` (N, n) for `weights`: w·Φ(ξ) with the kinked features
@@ -261,12 +271,7 @@ impl PyTrajectoryOptimizer {
     }
 
     fn __repr__(&self) -> String {
-        format!(
-            "TrajectoryOptimizer(waypoints={}, features={:?}, method={:?})",
-            self.optimizer.waypoints(),
-            self.features.names(),
-            self.method()
-        )
+        format!("TrajectoryOptimizer(waypoints={}, features={:?})", self.optimizer.waypoints(), self.features.names())
     }
 }
 

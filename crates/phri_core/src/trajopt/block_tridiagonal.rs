@@ -1,9 +1,7 @@
 //! Symmetric block-tridiagonal matrices over the waypoints of a trajectory, and their block
 //! Cholesky factorisation: every feature and penalty of the trajectory cost couples at most two
 //! consecutive waypoints, so its Hessian has this shape, and the Newton optimiser
-//! ([`crate::trajopt`]) solves with it in O(N·n³).
-
-use crate::features::SegmentHessian;
+//! ([`crate::trajopt`]) solves with it in O(N·n³). Pure linear algebra: it knows nothing of features.
 
 /// A symmetric block-tridiagonal matrix over the waypoints of a trajectory: one n × n block per
 /// waypoint on the diagonal and one per consecutive pair (i, i+1) above it, row-major.
@@ -133,10 +131,10 @@ impl BlockTridiagonal {
         &mut self.diag[i * self.n * self.n..(i + 1) * self.n * self.n]
     }
 
-    /// Adds a segment's 2n × 2n Hessian over (q_{i-1}, q_i).
-    pub fn add_segment(&mut self, i: usize, h: &SegmentHessian) {
+    /// Adds a symmetric 2n × 2n matrix `m` (row-major) over the waypoints (i − 1, i): e.g. the
+    /// second derivatives of a segment's cost.
+    pub fn add_segment(&mut self, i: usize, m: &[f64]) {
         let n = self.n;
-        let m = h.matrix();
         let w = 2 * n;
         for r in 0..n {
             for c in 0..n {

@@ -1,0 +1,166 @@
+//! Keep-out features (the laptop and human tasks): penetration of sample points along each segment
+//! into a vertical cylinder, and the hinge and Huber functions of the kinked features with the
+//! curvatures the optimiser's model uses for them.
+
+use nalgebra::{Vector2, Vector3};
+
+use super::{Feature, Segment, SegmentGrad};
+
+/// Huber smoothing of |x| with width δ: x²/(2δ) for |x| < δ, |x| − δ/2 beyond; returns (value,
+/// derivative). δ = 0 gives |x| with subgradient 0 at 0. The optimiser uses δ > 0 so that it minimises a
+/// C¹ cost; learning always counts features exactly (δ = 0).
+pub fn huber(x: f64, delta: f64) -> (f64, f64) {
+    if x.abs() >= delta {
+        (x.abs() - 0.5 * delta, sign(x))
+    } else {
+        (0.5 * x * x / delta, x / delta)
+    }
+}
+
+/// Huber-smoothed hinge max(0, x): 0 for x ≤ 0, x²/(2δ) up to δ, x − δ/2 beyond; (value, slope).
+pub fn smooth_hinge(x: f64, delta: f64) -> (f64, f64) {
+    if x <= 0.0 {
+        (0.0, 0.0)
+    } else if x >= delta {
+        (x - 0.5 * delta, 1.0)
+    } else {
+        (0.5 * x * x / delta, x / delta)
+    }
+}
+
+/// Curvature of [`huber`] for the optimiser's model: its second derivative 1/δ inside the quadratic
+/// zone, and on the linear sides the secant curvature 1/|x| of the quadratic through the kink with
+/// the same slope (the reweighting of IRLS, a convex majoriser of |x|), continuous at |x| = δ. It
+/// makes Newton steps aim at the kink instead of running off along a linear piece.
+pub(super) fn huber_curvature(x: f64, delta: f64) -> f64 {
+    let a = x.abs();
+    if a > 0.0 || delta > 0.0 {
+        1.0 / a.max(delta)
+    } else {
+        0.0
+    }
+}
+
+/// Curvature of [`smooth_hinge`] for the optimiser's model, as [`huber_curvature`]: 1/max(x, δ)
+/// where the hinge is active, 0 on its flat side.
+fn smooth_hinge_curvature(x: f64, delta: f64) -> f64 {
+    if x > 0.0 {
+        1.0 / x.max(delta)
+    } else {
+        0.0
+    }
+}
+
+fn sign(v: f64) -> f64 {
+    if v > 0.0 {
+        1.0
+    } else if v < 0.0 {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
+/// Penetration into a vertical cylinder: φ = Σ_k max(0, r − ‖p_xy(s_k) − c‖) over `samples` points
+/// s_k = k/samples along the segment (q_{i-1}, q_i] [m]. The original's laptop and human features.
+///
+/// A sample is skipped without its kinematics when a bound proves it outside the circle: with d₀, d₁
+/// the end points' distances from the centre and L the [`Segment::travel_bound`], the point at s is
+/// at least max(d₀ − s·L, d₁ − (1 − s)·L) from it; when that is ≥ r (plus 10⁻⁹ m for rounding)
+/// the sample contributes exactly 0, as it would if computed.
+#[derive(Debug, Clone)]
+pub struct Keepout {
+    pub name: String,
+    /// Centre in the base frame's xy plane [m].
+    pub center: Vector2<f64>,
+    /// Radius [m].
+    pub radius: f64,
+    /// Points per segment (the original uses 4).
+    pub samples: usize,
+}
+
+impl Keepout {
+    pub fn laptop() -> Self {
+        Keepout { name: "laptop".into(), center: Vector2::new(-0.7929, -0.1), radius: 0.4, samples: 4 }
+    }
+    pub fn human() -> Self {
+        Keepout { name: "human".into(), center: Vector2::new(0.0, 0.2), radius: 0.4, samples: 4 }
+    }
+}
+
+impl Feature for Keepout {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn segment(&self, seg: &mut Segment<'_>, mut grad: Option<SegmentGrad<'_>>) -> f64 {
+        let distance = |p: Vector3<f64>| Vector2::new(p.x - self.center.x, p.y - self.center.y).norm();
+        // Conservative skip (see the type's docs): the bound is exact, so results do not change.
+        let skip =
+            seg.travel_bound().map(|travel| (distance(seg.point(0.0).position), distance(seg.point(1.0).position), travel));
+        // The optimiser's model also wants the samples just outside (see `Pieces`).
+        let delta = seg.smoothing;
+        let margin = match grad.as_ref() {
+            Some(g) if g.pieces.is_some() && delta > 0.0 => PIECE_MARGIN * self.radius,
+            _ => 0.0,
+        };
+        let mut value = 0.0;
+        for k in 1..=self.samples {
+            let s = k as f64 / self.samples as f64;
+            if let Some((d0, d1, travel)) = skip {
+                if (d0 - s * travel).max(d1 - (1.0 - s) * travel) >= self.radius + margin + 1e-9 {
+                    continue;
+                }
+            }
+            let p = seg.point(s).position;
+            let d = Vector2::new(p.x - self.center.x, p.y - self.center.y);
+            let dist = d.norm();
+            if dist >= self.radius {
+                if dist < self.radius + margin {
+                    if let Some(pieces) = grad.as_mut().and_then(|g| g.pieces.as_deref_mut().map(|p| (p, g.scale))) {
+                        let (pieces, scale) = pieces;
+                        let u = d / dist;
+                        let jac = seg.jacobian(s);
+                        pieces.push(s, self.radius - dist, scale / delta, |j| -(u.x * jac[(0, j)] + u.y * jac[(1, j)]));
+                    }
+                }
+                continue;
+            }
+            let (v, slope) = smooth_hinge(self.radius - dist, delta);
+            value += v;
+            if let Some(g) = grad.as_mut() {
+                if dist > 0.0 && slope > 0.0 {
+                    let u = d / dist;
+                    let jac = seg.jacobian(s);
+                    // a = ∂(r − dist)/∂q, b = ∂(dist along the tangent)/∂q.
+                    let a = |j: usize| -(u.x * jac[(0, j)] + u.y * jac[(1, j)]);
+                    let b = |j: usize| -u.y * jac[(0, j)] + u.x * jac[(1, j)];
+                    for j in 0..g.this.len() {
+                        let dphi = a(j) * slope * g.scale;
+                        g.this[j] += s * dphi;
+                        g.prev[j] += (1.0 - s) * dphi;
+                    }
+                    if let Some(h) = g.hessian.as_deref_mut() {
+                        // ∂²φ = h''·a·aᵀ − h'·(b·bᵀ/dist + Σ_c u_c ∂²p_c) (c = x, y), with the
+                        // hinge's curvature h'' for the model (see `smooth_hinge_curvature`).
+                        let curvature = smooth_hinge_curvature(self.radius - dist, delta);
+                        if curvature > 0.0 {
+                            h.add_outer(s, g.scale * curvature, a);
+                        }
+                        // The geometric (indefinite) terms only near the kink, where they matter for
+                        // the final convergence; deep inside the circle they would force heavy
+                        // damping (−1/dist near the centre) for no benefit.
+                        if self.radius - dist < delta {
+                            h.add_outer(s, -g.scale * slope / dist, b);
+                            seg.add_position_curvature(s, &Vector3::new(u.x, u.y, 0.0), -g.scale * slope, h);
+                        }
+                    }
+                }
+            }
+        }
+        value
+    }
+}
+
+/// How far outside a keep-out circle (as a fraction of its radius) samples are reported to the
+/// optimiser's model as [`Pieces`](super::Pieces).
+const PIECE_MARGIN: f64 = 0.1;

@@ -1,0 +1,148 @@
+//! What a caller tunes ([`TrajoptParams`], with the penalties [`Clearance`] and `max_step`, and the
+//! Newton model's [`KinematicCurvature`]) and what a solve reports ([`TrajoptInfo`]).
+
+use std::time::Duration;
+
+use crate::error::{check_vector, PhriError, Result};
+use crate::model::{FrameId, RobotModel};
+
+/// Keep a frame's origin above a height (the hand above the table top plus a clearance), as the
+/// quadratic penalty ρ·max(0, z_min − z)² at every interior waypoint.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Clearance {
+    /// The frame whose origin is kept up.
+    pub frame: FrameId,
+    /// Lowest allowed z of the frame origin [m] (table top + clearance).
+    pub min_z: f64,
+    /// Penalty weight ρ [cost per m²].
+    pub weight: f64,
+}
+
+/// The Newton model's share of the kinematics' second derivatives (see
+/// `TrajoptParams::kinematic_curvature`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum KinematicCurvature {
+    /// Leave them out: the Gauss–Newton part only. Far from the optimum it models these features
+    /// better than the exact Hessian, which is indefinite along much of the path and forces heavy
+    /// damping; near it, convergence is only linear where they matter (table: the clearance holds
+    /// the hand down and the table feature's curvature decides the rest).
+    GaussNewton,
+    /// Gauss–Newton until the model's pieces agree with its step (the active set has settled) and
+    /// it predicts little more decrease, exact from then on, for a quadratic end.
+    #[default]
+    Settled,
+    /// Include them from the start.
+    Exact,
+}
+
+/// Tuning of the optimiser; `Default` gives the documented defaults.
+///
+/// With `max_time` unset every solve is deterministic: the same inputs give bit-identical plans.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrajoptParams {
+    /// Iteration cap: Newton steps tried on the given waypoints (each coarse level has its own).
+    pub max_iterations: usize,
+    /// Wall-time cap; `None` (the default) keeps results deterministic.
+    pub max_time: Option<Duration>,
+    /// Stop when the largest projected-gradient entry is below this [cost per rad].
+    pub gradient_tolerance: f64,
+    /// Stop when a step lowers (or the model predicts it lowers) the cost by less than this
+    /// fraction of it [1].
+    pub relative_tolerance: f64,
+    /// Huber width δ of the kinked features during optimisation (hinges in m, |·| unitless);
+    /// the plan's optimum moves by at most about δ. 0 optimises the exact subgradient form.
+    pub smoothing: f64,
+    /// Frames kept above the table (e.g. link_7 and the hand's tool point).
+    pub clearance: Vec<Clearance>,
+    /// Largest joint move between consecutive waypoints [rad] (velocity limit × waypoint spacing),
+    /// one per joint; empty for none. A quadratic penalty with `step_weight`.
+    pub max_step: Vec<f64>,
+    /// Penalty weight of `max_step` [cost per rad²].
+    pub step_weight: f64,
+    /// How the Newton model treats the second derivatives of the kinematics in the features that
+    /// act at every waypoint (table, coffee, origin) and in the clearance penalty (default
+    /// [`KinematicCurvature::Settled`]). See `features::SegmentHessian::kinematic`.
+    pub kinematic_curvature: KinematicCurvature,
+    /// Multiresolution (see the module docs): a coarser copy of the problem with about
+    /// 1/`coarsening` of the segments, recursively, on which cold solves and `solve_levels` warm
+    /// starts begin; 0 or 1 solves on the given waypoints only. Default 3.
+    pub coarsening: usize,
+    /// Fewest waypoints of a coarse level (default 8): a level that would have fewer is not built.
+    pub coarsest: usize,
+}
+
+impl Default for TrajoptParams {
+    fn default() -> Self {
+        TrajoptParams {
+            max_iterations: 500,
+            max_time: None,
+            gradient_tolerance: 1e-6,
+            relative_tolerance: 1e-9,
+            smoothing: 0.05,
+            clearance: Vec::new(),
+            max_step: Vec::new(),
+            step_weight: 1e3,
+            kinematic_curvature: KinematicCurvature::Settled,
+            coarsening: 3,
+            coarsest: 8,
+        }
+    }
+}
+
+impl TrajoptParams {
+    /// Checks the parameters for `model`, naming the offending one.
+    pub(super) fn check(&self, model: &RobotModel) -> Result<()> {
+        if self.max_iterations == 0 {
+            return Err(PhriError::invalid("max_iterations", "must be at least 1"));
+        }
+        if !(self.smoothing >= 0.0 && self.smoothing.is_finite()) {
+            return Err(PhriError::invalid("smoothing", format!("must be finite and >= 0, got {}", self.smoothing)));
+        }
+        if !(self.gradient_tolerance >= 0.0 && self.relative_tolerance >= 0.0) {
+            return Err(PhriError::invalid("gradient_tolerance", "and relative_tolerance must be >= 0"));
+        }
+        for c in &self.clearance {
+            if c.frame.0 >= model.frames.len() {
+                return Err(PhriError::invalid("clearance", "frame is not a frame of this robot"));
+            }
+            if !(c.min_z.is_finite() && c.weight.is_finite() && c.weight > 0.0) {
+                return Err(PhriError::invalid("clearance", "min_z must be finite and weight finite and > 0"));
+            }
+        }
+        if self.coarsest < 3 {
+            return Err(PhriError::invalid("coarsest", format!("must be at least 3 waypoints, got {}", self.coarsest)));
+        }
+        if !self.max_step.is_empty() {
+            check_vector("max_step", &self.max_step, model.nq())?;
+            if self.max_step.iter().any(|v| *v <= 0.0) || !(self.step_weight.is_finite() && self.step_weight > 0.0) {
+                return Err(PhriError::invalid("max_step", "entries and step_weight must be > 0"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What a solve did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrajoptInfo {
+    /// Newton iterations on the given waypoints [count].
+    pub iterations: usize,
+    /// Newton iterations on the coarse levels, all together (0 without multiresolution) [count].
+    pub coarse_iterations: usize,
+    /// Cost evaluations on the given waypoints, each one Φ, ∇Φ and ∇²Φ [count].
+    pub evaluations: usize,
+    /// Final cost w·Φ + penalty [cost].
+    pub cost: f64,
+    /// Final penalty part of the cost (clearance and max_step) [cost].
+    pub penalty: f64,
+    /// Largest clearance violation at the solution [m] (0 when satisfied or unused).
+    pub max_violation: f64,
+    /// Largest joint step beyond `max_step` between consecutive waypoints [rad] (0 without
+    /// max_step): the quadratic penalty leaves about gradient/(2·step_weight); much more means
+    /// the goal is too far for the duration.
+    pub max_step_excess: f64,
+    /// Met a tolerance (rather than an iteration or time cap).
+    pub converged: bool,
+    /// Wall time [s].
+    pub seconds: f64,
+}

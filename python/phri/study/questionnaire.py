@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -28,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from phri.atomic import write_atomic
 from phri.study.errors import QuestionnaireError
 
 if TYPE_CHECKING:
@@ -162,12 +162,7 @@ def _append_rows(path: Path, rows: Sequence[Mapping[str, object]]) -> None:
     writer = csv.writer(buffer, lineterminator="\n")
     for row in rows:
         writer.writerow([row[c] for c in COLUMNS])
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as f:
-        f.write(old + buffer.getvalue().encode("utf-8"))
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    write_atomic(path, old + buffer.getvalue().encode("utf-8"))
 
 
 def import_responses(source: str | Path, target: str | Path, *, study: StudyConfig | None = None) -> int:

@@ -16,7 +16,7 @@ from phri import exceptions as ex
 
 PICK_BASIC = np.radians([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8])
 PLACE_LOWER = np.radians([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0])
-THRESHOLDS = np.array([8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0])  # N·m, the JACO2's (original_system.md)
+THRESHOLDS = np.array([8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0])  # N·m, the JACO2's (the authors' published code)
 TOOL = "j2s7s300_end_effector"
 CUP = "j2s7s300_link_7"  # the point of the position features
 DURATION = 15.0  # s

@@ -1,10 +1,11 @@
 """Runs episodes of a study: one simulator World, reused across episodes, and one Planner per task.
 
 Every backend (serial, process pool, Ray) wraps an :class:`EpisodeRunner`; what comes back is an
-:class:`Outcome` — the table row and the episode's log as bytes — so that the process that owns the
-study folder is the only one that writes to it (and a cluster needs no shared file system). Likewise
-the tasks: the process that starts the study loads and checks the task files once and hands the
-:class:`~phri.config.Task` objects to every runner, so no worker reads a task file.
+:class:`Outcome` — the table row and the episode's log as the bytes of its .npz, made in memory — so
+that the process that owns the study folder is the only one that writes to it, once (and a cluster
+needs no shared file system). Likewise the tasks: the process that starts the study loads and checks
+the task files once and hands the :class:`~phri.config.Task` objects to every runner, so no worker
+reads a task file.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ Solvers, all from the same straight line, with the joint limits as bounds:
 * scipy L-BFGS-B on `ReferenceObjective`, an independent numpy implementation of the same cost and
   gradient whose kinematics (poses and Jacobians of the sample points) come either from phri's
   batched `Robot.frame_pose`/`Robot.jacobian` ("scipy+phri-kin") or from pinocchio, one call per
-  sample point in a Python loop ("scipy+pinocchio", the approach the issue cites: ~33 ms for 20
+  sample point in a Python loop ("scipy+pinocchio", the usual approach: ~33 ms for 20
   waypoints). tests/test_trajopt.py checks that `ReferenceObjective` equals phri's
   `TrajectoryOptimizer.objective` to 1e-9, so every solver minimises the same function. L-BFGS-B
   runs to convergence (ftol 1e-13, gtol 1e-9, 20 correction pairs).

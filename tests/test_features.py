@@ -3,7 +3,7 @@ finite differences, normalisation ranges, and typed errors.
 
 The reference uses phri.Robot.frame_pose only for the forward kinematics of each sample point; the
 features themselves (efficiency, table, coffee, laptop/human hinge with 4 sub-samples per segment
-(q_{i-1}, q_i], origin) are computed here in numpy, as original_system.md defines them.
+(q_{i-1}, q_i], origin) are computed here in numpy, as the authors' published code defines them.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ LAPTOP = (-0.7929, -0.1)
 HUMAN = (0.0, 0.2)
 TOL = 1e-9
 
-POSES = {  # Kinova degrees (original_system.md)
+POSES = {  # Kinova degrees (the authors' published code)
     "pick_basic": [104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8],
     "pick_shelf": [210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8],
     "place_lower": [210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0],

@@ -10,7 +10,7 @@ import pytest
 import phri
 from phri import exceptions as ex
 
-JACO2_THRESHOLDS = [8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0]  # N·m, original_system.md
+JACO2_THRESHOLDS = [8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0]  # N·m, the authors' published code
 
 
 @pytest.fixture

@@ -16,7 +16,7 @@ from phri import exceptions as ex
 
 PICK_BASIC = np.radians([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8])
 PLACE_LOWER = np.radians([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0])
-THRESHOLDS = np.array([8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0])  # N·m, the JACO2's (original_system.md)
+THRESHOLDS = np.array([8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0])  # N·m, the JACO2's (the authors' published code)
 TOOL = "j2s7s300_end_effector"
 CUP = "j2s7s300_link_7"  # the point of the position features
 DURATION = 15.0  # s
@@ -485,7 +485,8 @@ def test_history_shapes_and_dtypes(robot, make):
     history = learner.history()
     assert len(history) == 2 and repr(history) == "LearnerHistory(interactions=2, plans=3)"
     assert history.t.dtype == np.float64 and history.t.tolist() == [4.0, 4.1]
-    assert history.u_h.shape == (2, 7) and history.delta_phi.shape == (2, 2) and history.weights.shape == (2, 2)
+    assert history.u_h.shape == (2, 7)
+    assert history.delta_phi.shape == (2, 2) and history.weights.shape == (2, 2)
     assert history.moved.tolist() == [WINDOW, WINDOW] and np.issubdtype(history.moved.dtype, np.integer)
     assert all(isinstance(u, phri.UpdateInfo) for u in history.updates)
     assert all(isinstance(r, phri.TrajoptInfo) for r in history.replans)

@@ -216,7 +216,7 @@ def test_table1_matches_paired_t_tests() -> None:
         assert row["alpha"] == pytest.approx(q.cronbach_alpha(scored[[f"q{i}" for i in q.SCALES[s]]]))
         assert row["mean_learning"] > row["mean_impedance"]
     text = q.table1_markdown(table)
-    assert "F(1,9)" in text and "<.0001" in text and "2ᴿ. Even by the end" in text
+    assert "F(1,9)" in text and "< .0001" in text and "2ᴿ. Even by the end" in text
     assert text.count("\n") == 2 + 4
     with pytest.raises(QuestionnaireError, match="telepathy"):
         q.table1(responses.assign(strategy="telepathy"))

@@ -2,7 +2,7 @@
 JACO2 and for robots written here (prismatic joints, tilted non-unit axes, a sub-chain of a tree).
 
 PyBullet reads the same URDF, so any rounding in the file is shared and the two agree to machine
-precision: the brief's contract is 1e-6, and double-precision quantities are held to ATOL = 1e-9
+precision: the contract is 1e-6, and double-precision quantities are held to ATOL = 1e-9
 (observed: ~1e-14). The exception is getLinkState's worldLinkFrame fields (4, 5): pybullet composes them
 client-side in single precision (every value returned is an exact float32, asserted below), so the
 position is off by up to ~1e-7 m and the rotation entries by up to ~10 float32 ulps (1.2e-6 observed
@@ -136,7 +136,7 @@ def test_model_matches_the_urdf_as_pybullet_reads_it(robot: phri.Robot, pybullet
         assert robot.velocity_limits[k] == velocity
 
 
-FK_VECTORS = [  # jaco2_model.md, "Forward-kinematics test vectors"
+FK_VECTORS = [  # forward kinematics of the j2s7s300 description (kinova-ros) at reference poses
     ("candle", np.full(7, np.pi), END_EFFECTOR, (0.0, -0.0130, 1.2603)),
     ("candle", np.full(7, np.pi), LINK_7, (0.0, -0.0130, 1.1003)),
     (

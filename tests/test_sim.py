@@ -4,6 +4,7 @@ and the paper's result — learning beats impedance on every task — with a fix
 from __future__ import annotations
 
 import csv
+import io
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +25,7 @@ from phri.sim import (
     WorldParams,
     run_episode,
 )
+from phri.sim.episode import encode_log, simulate_episode
 from phri.sim.world import HAND
 
 NOBODY = ParticipantParams(tolerance=1e9, tilt_tolerance=1e9)
@@ -154,6 +156,20 @@ def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planne
         assert log["q"].shape == (301, 7) and log["plans"].shape[1:] == (7, 7)
     with pytest.raises(FileExistsError):
         run_episode(short, world, person, seed=5, planner=planner, log_path=tmp_path / "a.npz")
+
+
+def test_the_log_in_memory_is_the_log_written(world, tmp_path) -> None:
+    short = shortened(phri.load_task("coffee"), 1.0, 5)
+    planner = Planner(short, world)
+    person = ParticipantParams(tolerance=0.01, delay=0.05)
+    written = run_episode(short, world, person, seed=2, planner=planner, log_path=tmp_path / "a.npz")
+    result, error = simulate_episode(short, world, person, seed=2, planner=planner)
+    assert error is None and result.log is None and not list(tmp_path.glob("*.partial"))
+    with np.load(tmp_path / "a.npz") as log, np.load(io.BytesIO(encode_log(result.log_arrays))) as memory:
+        assert log.files == memory.files == list(written.log_arrays)
+        for key in log.files:
+            np.testing.assert_array_equal(log[key], memory[key])
+            np.testing.assert_array_equal(log[key], written.log_arrays[key])
 
 
 def test_a_simulator_failure_is_an_error_and_the_log_so_far_stays_readable(

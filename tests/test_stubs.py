@@ -21,7 +21,8 @@ def stub_literals() -> dict[str, tuple[str, ...]]:
         if isinstance(node, ast.Assign) and isinstance(node.value, ast.Subscript):
             (target,) = node.targets
             if isinstance(target, ast.Name) and getattr(node.value.value, "id", None) == "Literal":
-                items = node.value.slice.elts if isinstance(node.value.slice, ast.Tuple) else [node.value.slice]
+                names = node.value.slice
+                items = names.elts if isinstance(names, ast.Tuple) else [names]
                 found[target.id] = tuple(ast.literal_eval(item) for item in items)
     return found
 

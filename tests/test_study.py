@@ -953,3 +953,34 @@ def test_cli_study_resume_and_report(tmp_path: Path, capsys: pytest.CaptureFixtu
 def test_errors_are_phri_errors() -> None:
     for cls in (StudyConfigError, StudyFileError, StudyMismatchError, StudyLockedError):
         assert issubclass(cls, ConfigError) and issubclass(cls, PhriError) and issubclass(cls, ValueError)
+
+
+def test_a_failed_episode_hands_back_its_log_so_far(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A simulator failure in a worker is a "failed" row naming the log in the study folder, and the
+    log so far comes back in memory (the .npz bytes the driver writes)."""
+    import io
+
+    from phri.exceptions import SimulationError
+    from phri.study.runner import EpisodeRunner
+
+    runner = EpisodeRunner(TINY, TINY.load_tasks())
+    try:
+        world, calls = runner.world, {"n": 0}
+        real_state = world.state
+
+        def failing_state():  # noqa: ANN202
+            calls["n"] += 1
+            if calls["n"] > 200:
+                raise SimulationError("the simulator returned a non-finite joint state")
+            return real_state()
+
+        monkeypatch.setattr(world, "state", failing_state)
+        spec = schedule(TINY)[0]
+        outcome = runner.run(spec)
+    finally:
+        runner.close()
+    name = spec.log_name()
+    assert outcome.row["status"] == "failed" and outcome.row["log"] == f"logs/{name}"
+    assert "non-finite" in outcome.row["error"] and f"(log so far: logs/{name})" in outcome.row["error"]
+    with np.load(io.BytesIO(outcome.log)) as log:
+        assert 15 <= len(log["t"]) <= 21

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from phri.config import STUDY_TASKS, load_task
+from phri import plots
+from phri.config import STUDY_TASKS, Task, load_task
 from phri.exceptions import InvalidParameterError
 from phri.sim import STRATEGIES, EpisodeConfig, EpisodeResult, ParticipantParams, Planner, World, WorldParams
 
@@ -55,60 +56,27 @@ class DemoResult:
     seconds: float
 
 
-def _plot(
-    folder: Path, task: str, results: dict[str, EpisodeResult], true_weight: float, duration: float
-) -> list[Path]:
-    """The task's figures; `duration` [s] is the task's."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    colors = {"impedance": "tab:red", "learning": "tab:blue"}
-    written = []
+def _plot(folder: Path, task: Task, results: dict[str, EpisodeResult]) -> list[Path]:
+    """The task's figures, drawn from the episodes' results in memory (their `log_arrays`)."""
+    logs = {strategy: r.log_arrays for strategy, r in results.items()}
     # Fig. 1: the person's effort over time.
-    fig, ax = plt.subplots(figsize=(6.4, 3.2))
-    for strategy, r in results.items():
-        with np.load(r.log) as log:
-            ax.plot(log["t"], np.abs(log["u_h"]).sum(axis=1), color=colors[strategy], label=strategy, lw=1)
-    ax.set(xlabel="time [s]", ylabel="measured |u_H|₁ [N·m]", title=f"{task}: human torque over time")
-    ax.legend()
-    fig.tight_layout()
-    written.append(folder / f"force_{task}.png")
-    fig.savefig(written[-1], dpi=110)
-    plt.close(fig)
-    # Fig. 5 right: the hand's path against the desired one.
-    fig, (top, side) = plt.subplots(1, 2, figsize=(9, 3.6))
+    force = plots.plot_effort(
+        folder / f"force_{task.name}.png", task.name, {s: (a["t"], a["u_h"]) for s, a in logs.items()}
+    )
+    # Fig. 5 right: the hand's path against the desired one, at the plan's waypoint times.
     desired = next(iter(results.values())).desired_path
-    t = np.linspace(0, duration, len(desired))
-    top.plot(desired[:, 0], desired[:, 1], "k--", label="desired")
-    side.plot(t, desired[:, 2], "k--", label="desired")
-    for strategy, r in results.items():
-        top.plot(r.executed_path[:, 0], r.executed_path[:, 1], color=colors[strategy], label=strategy)
-        side.plot(t, r.executed_path[:, 2], color=colors[strategy], label=strategy)
-    top.set(xlabel="x [m]", ylabel="y [m]", title="cup path, top view", aspect="equal")
-    side.set(xlabel="time [s]", ylabel="cup height z [m]", title="cup height")
-    side.legend(fontsize=8)
-    fig.suptitle(task)
-    fig.tight_layout()
-    written.append(folder / f"path_{task}.png")
-    fig.savefig(written[-1], dpi=110)
-    plt.close(fig)
-    # The learned weight over time.
-    r = results["learning"]
-    with np.load(r.log) as log:
-        wt = np.append(log["weights_t"], duration)
-        w = np.vstack([log["weights"], log["weights"][-1:]])[:, -1]
-    fig, ax = plt.subplots(figsize=(6.4, 3.0))
-    ax.step(wt, w, where="post", color=colors["learning"], label="learned")
-    ax.axhline(true_weight, color="k", ls="--", label="true")
-    ax.set(xlabel="time [s]", ylabel=f"weight of '{task}'", title=f"{task}: weight over time")
-    ax.legend()
-    fig.tight_layout()
-    written.append(folder / f"weights_{task}.png")
-    fig.savefig(written[-1], dpi=110)
-    plt.close(fig)
-    return written
+    t = np.linspace(0, task.duration, len(desired))
+    executed = {s: (t, r.executed_path) for s, r in results.items()}
+    path = plots.plot_paths(
+        folder / f"path_{task.name}.png", (t, desired), executed, plots.DEMO_PATHS, title=task.name
+    )
+    # The learned weight of the task's feature over time.
+    learned, true = logs["learning"], float(task.vector("true")[task.task_index])
+    weights = plots.plot_weight(
+        folder / f"weights_{task.name}.png", task.name, learned["weights_t"],
+        learned["weights"][:, task.task_index], true, task.duration,
+    )  # fmt: skip
+    return [force, path, weights]
 
 
 def run_demo(
@@ -152,7 +120,7 @@ def run_demo(
                     f"{r.cost:>8.3f} "
                     f"{r.desired_cost:>8.3f} {r.final_weights[task.task_index]:>7.3f} {r.wall_time:>6.2f}"
                 )
-            _plot(folder, task_name, per_task, float(task.vector("true")[task.task_index]), task.duration)
+            _plot(folder, task, per_task)
     seconds = time.perf_counter() - began
     print(
         f"\nwrote {folder}/summary.csv, figures force_*.png path_*.png weights_*.png, frames/, logs/ "

@@ -1,14 +1,15 @@
 """One simulated attempt at a task: the JACO2 tracks its plan at 1 kHz under the Rust impedance law,
 the simulated participant pushes when the cup strays, and the robot either learns (Algorithm 1) or
-only complies (the impedance baseline). Scored as the study scored it (original_system.md).
+only complies (the impedance baseline). Scored as the paper's study scored it (Bajcsy et al. 2017,
+§4.2: effort, interaction time, task cost).
 """
 
 from __future__ import annotations
 
+import io
 import math
-import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,11 +21,13 @@ from phri._phri import (
     ImpedanceController,
     InteractionDetector,
     Learner,
+    Robot,
     TimedTrajectory,
     TrajectoryOptimizer,
     TrajoptInfo,
     WeightUpdate,
 )
+from phri.atomic import write_atomic
 from phri.config import Task
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.participant import Participant, ParticipantParams
@@ -37,7 +40,11 @@ __all__ = [
     "EpisodeConfig",
     "EpisodeResult",
     "Planner",
+    "encode_log",
+    "episode_failure",
     "run_episode",
+    "simulate_episode",
+    "write_log",
 ]
 
 STRATEGIES = ("impedance", "learning")
@@ -179,6 +186,8 @@ class EpisodeResult:
     #: Executed and desired link_7 paths (N, 3) for plots.
     executed_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     desired_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    #: The episode's log in memory: the arrays a .npz log holds, under the same keys.
+    log_arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
     def row(self) -> dict[str, object]:
         """A flat record for tables."""
@@ -251,15 +260,248 @@ class Planner:
             )
 
 
-def _write_log(path: Path, arrays: dict[str, np.ndarray]) -> Path:
-    """Writes a compressed .npz without ever leaving a half-written file under `path`."""
-    if path.exists():
-        raise FileExistsError(f"{path} exists; phri never overwrites a log")
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as f:
-        np.savez_compressed(f, **arrays)
-    os.replace(tmp, path)
-    return path
+def encode_log(arrays: Mapping[str, np.ndarray]) -> bytes:
+    """An episode log as the bytes of a compressed .npz, made in memory (a pool worker hands these to
+    the process that owns the output folder, which writes them once)."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)  # type: ignore[arg-type]
+    return buffer.getvalue()
+
+
+def write_log(path: Path, arrays: Mapping[str, np.ndarray]) -> Path:
+    """Writes an episode log (compressed .npz) atomically; an existing `path` is a FileExistsError:
+    a log, once written, is never overwritten."""
+    return write_atomic(path, encode_log(arrays), overwrite=False)
+
+
+@dataclass
+class _Parts:
+    """What one episode runs: the learner (the robot's side), the controller, the person and the
+    sensor, and the simulator steps between two torque samples and two log rows."""
+
+    planner: Planner
+    learner: Learner
+    controller: ImpedanceController
+    person: Participant
+    sensor_rng: np.random.Generator
+    #: The sensor's constant offset, per joint [N·m].
+    bias: np.ndarray
+    sample_every: int
+    log_every: int
+
+
+def _set_up(
+    task: Task,
+    world: World,
+    participant_params: ParticipantParams,
+    config: EpisodeConfig,
+    seed: int,
+    planner: Planner | None,
+) -> _Parts:
+    """Checks `config` against the world and builds the episode's learner, controller and person
+    (and the task's planner if `planner` is None)."""
+    dt = world.params.timestep
+    sample_every = steps_per_period("sample_rate", config.sample_rate, dt)
+    log_every = steps_per_period("log_rate", config.log_rate, dt)
+    model = world.model
+    for key in ("sensor_bias", "thresholds", "detector_bias"):
+        value = getattr(config, key)
+        if value is not None and len(value) != model.nq:
+            raise InvalidParameterError(f"{key} must have one value per joint ({model.nq}), got {len(value)}")
+    # Independent streams for the person and the sensor: the same seed gives the same person (their
+    # own draws) whatever the sensor does, e.g. under both strategies or another sensor_noise.
+    person_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    planner = planner or Planner(task, world)
+    update = WeightUpdate(
+        task.vector("step"), task.vector("lower"), task.vector("upper"),
+        learned=[f.learned for f in task.features], rule=config.rule,  # type: ignore[arg-type]
+    )  # fmt: skip
+    detector = InteractionDetector(
+        ORIGINAL_THRESHOLDS if config.thresholds is None else config.thresholds,
+        None if config.detector_bias is None else config.detector_bias,
+    )
+    learner = Learner(
+        planner.features, Deformation(), update, detector, planner.optimizer,
+        task.vector("initial"), task.start, task.goal,
+        duration=task.duration, sample_period=1.0 / config.sample_rate,
+        learning=config.strategy == "learning", transition_speed=config.transition_speed,
+    )  # fmt: skip
+    desired = TimedTrajectory(planner.desired, task.duration)
+    person = Participant(participant_params, desired, task.task_feature, model, person_rng, dt=dt)
+    bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
+    controller = ImpedanceController(model)
+    return _Parts(planner, learner, controller, person, sensor_rng, bias, sample_every, log_every)
+
+
+@dataclass
+class _Trace:
+    """The 1 kHz loop's record at the log rate: the first `rows` rows of each array are filled."""
+
+    t: np.ndarray
+    #: q, qd, q_ref, tau, u_h (measured) per joint and push (the person's wrench at the hand).
+    series: dict[str, np.ndarray]
+    rows: int = 0
+    #: Largest hand-to-reference distance while nobody touches the hand [m].
+    tracking_error: float = 0.0
+    frames: list[Path] = field(default_factory=list)
+    #: What stopped the loop early (None: it ran to the end of the task).
+    error: BaseException | None = None
+
+
+def _simulate(
+    task: Task,
+    world: World,
+    parts: _Parts,
+    config: EpisodeConfig,
+    frame_times: Sequence[float],
+    frame_prefix: Path | None,
+) -> _Trace:
+    """The 1 kHz loop: the person pushes, the sensor samples, the learner updates its reference and
+    the impedance controller tracks it. An error inside stops the loop and is kept in the trace."""
+    dt, model = world.params.timestep, world.model
+    steps = int(round(task.duration / dt)) + 1
+    rows = (steps + parts.log_every - 1) // parts.log_every
+    series = {k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")}
+    #: The person's wrench at the hand (force [N], torque [N·m]); zero while nobody touches it.
+    series["push"] = np.zeros((rows, 6))
+    trace = _Trace(np.zeros(rows), series)
+    learner, person = parts.learner, parts.person
+    world.set_scene(task.scene)
+    world.reset(task.start)
+    measured = np.zeros(model.nq)
+    tau = np.zeros(model.nq)
+    frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
+    try:
+        for k in range(steps):
+            t = k * dt
+            q, qd = world.state()
+            push = person.wrench(t, q)
+            if k % parts.sample_every == 0:
+                measured = (
+                    parts.bias + parts.sensor_rng.normal(0.0, config.sensor_noise, model.nq)
+                    if config.sensor_noise
+                    else parts.bias.copy()
+                )
+                if push is not None:
+                    measured += model.jacobian(HAND, q).T @ np.concatenate(push)
+                learner.observe(t, measured)
+            q_ref, qd_ref, _ = learner.reference(t)
+            parts.controller.torque_implicit(q, qd, q_ref, qd_ref, dt, out=tau)
+            if k % parts.log_every == 0:
+                _log_row(trace, model, t, push, q=q, qd=qd, q_ref=q_ref, tau=tau, u_h=measured)
+            if k in frame_ticks and frame_prefix is not None:
+                trace.frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
+            if push is None:
+                world.step(tau)
+            else:
+                world.step(tau, push[0], push[1])
+    except BaseException as e:  # noqa: BLE001 - kept with the log so far; the caller re-raises it
+        trace.error = e
+    return trace
+
+
+def _log_row(
+    trace: _Trace, model: Robot, t: float, push: tuple[np.ndarray, np.ndarray] | None, **joints: np.ndarray
+) -> None:
+    """Appends one row at the log rate, and tracks the hand's distance from its reference while
+    nobody touches it."""
+    row = trace.rows
+    trace.t[row] = t
+    for key, v in joints.items():
+        trace.series[key][row] = v
+    if push is not None:
+        trace.series["push"][row] = np.concatenate(push)
+    trace.rows += 1
+    if push is None:
+        q, q_ref = joints["q"], joints["q_ref"]
+        gap = model.frame_pose(HAND, q)[:3, 3] - model.frame_pose(HAND, q_ref)[:3, 3]
+        trace.tracking_error = max(trace.tracking_error, float(np.linalg.norm(gap)))
+
+
+def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndarray]:
+    """The learner's history as log arrays: each interaction sample's time [s] and measured torque
+    [N·m], the weights after each (from t = 0, the initial weights), and each replan's time and plan."""
+    history = learner.history()
+    return {
+        "interaction_t": history.t,
+        "interaction_u_h": history.u_h,
+        "weights_t": np.concatenate([[0.0], history.t]),
+        "weights": np.vstack([initial_weights, history.weights]),
+        "plan_t": history.plan_t,
+        "plans": history.plans,
+    }
+
+
+def _score(
+    task: Task,
+    world: World,
+    parts: _Parts,
+    trace: _Trace,
+    config: EpisodeConfig,
+    initial_weights: np.ndarray,
+) -> EpisodeResult:
+    """The study's measures of the episode, with its log arrays (the keys of the .npz log); wall_time
+    is left for the caller."""
+    model, dt, planner = world.model, world.params.timestep, parts.planner
+    history = _history(parts.learner, initial_weights)
+    # The executed path at the plan's waypoint times, scored with the same features.
+    idx = np.minimum(
+        np.round(np.linspace(0, task.duration, task.waypoints) / (dt * parts.log_every)).astype(int),
+        max(trace.rows - 1, 0),
+    )
+    executed = trace.series["q"][idx]
+    phi = planner.features.phi(executed)
+    frame = "j2s7s300_link_7"
+    rows = trace.rows
+    return EpisodeResult(
+        task=task.name,
+        strategy=config.strategy,
+        effort=float(np.abs(history["interaction_u_h"]).sum()),
+        interaction_time=len(history["interaction_t"]) / config.sample_rate,
+        cost=float(phi[task.task_index]),
+        desired_cost=planner.desired_cost,
+        initial_weights=initial_weights,
+        final_weights=parts.learner.weights,
+        task_index=task.task_index,
+        tracking_error=trace.tracking_error,
+        wall_time=0.0,
+        executed_path=model.frame_pose(frame, executed)[:, :3, 3],
+        desired_path=model.frame_pose(frame, planner.desired)[:, :3, 3],
+        frames=trace.frames,
+        log_arrays={
+            "t": trace.t[:rows], **{k: v[:rows] for k, v in trace.series.items()}, **history,
+            "desired": planner.desired, "feature_names": np.array(task.feature_names),
+        },
+    )  # fmt: skip
+
+
+def simulate_episode(
+    task: Task,
+    world: World,
+    participant_params: ParticipantParams,
+    config: EpisodeConfig | None = None,
+    *,
+    seed: int = 0,
+    planner: Planner | None = None,
+    frame_times: Sequence[float] = (),
+    frame_prefix: Path | None = None,
+) -> tuple[EpisodeResult, BaseException | None]:
+    """Simulates one attempt at `task` as :func:`run_episode` does, writing no log: returns the result
+    (its `log_arrays` hold the log, in memory) and the error that stopped the simulation early (None
+    if it ran to the end; the result then covers the time simulated). Set-up errors are raised."""
+    config = config or EpisodeConfig()
+    began = time.perf_counter()
+    parts = _set_up(task, world, participant_params, config, seed, planner)
+    initial_weights = parts.learner.weights
+    trace = _simulate(task, world, parts, config, frame_times, frame_prefix)
+    result = _score(task, world, parts, trace, config, initial_weights)
+    result.wall_time = time.perf_counter() - began
+    return result, trace.error
+
+
+def episode_failure(task: str, strategy: str, error: SimulationError, log: object) -> SimulationError:
+    """The error of an episode the simulator failed: names the task, the strategy and the log so far."""
+    return SimulationError(f"{task}/{strategy}: {error} (log so far: {log})")
 
 
 def run_episode(
@@ -276,132 +518,18 @@ def run_episode(
 ) -> EpisodeResult:
     """Simulates one attempt at `task` for `task.duration` seconds at the world's time step.
 
-    `log_path` (.npz) receives the compressed time series; `frame_times` [s] are rendered to
+    `log_path` (.npz) receives the compressed time series (also when the simulation fails: the log so
+    far, then the error is raised); `frame_times` [s] are rendered to
     ``{frame_prefix}_t{t:05.2f}.png`` with PyBullet's software renderer."""
     config = config or EpisodeConfig()
-    began = time.perf_counter()
-    dt = world.params.timestep
-    sample_every = steps_per_period("sample_rate", config.sample_rate, dt)
-    log_every = steps_per_period("log_rate", config.log_rate, dt)
-    model = world.model
-    for key in ("sensor_bias", "thresholds", "detector_bias"):
-        value = getattr(config, key)
-        if value is not None and len(value) != model.nq:
-            raise InvalidParameterError(f"{key} must have one value per joint ({model.nq}), got {len(value)}")
-    # Independent streams for the person and the sensor: the same seed gives the same person (their
-    # own draws) whatever the sensor does, e.g. under both strategies or another sensor_noise.
-    person_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    planner = planner or Planner(task, world)
-    update = WeightUpdate(
-        task.vector("step"), task.vector("lower"), task.vector("upper"),
-        learned=[f.learned for f in task.features], rule=config.rule,
+    result, error = simulate_episode(
+        task, world, participant_params, config, seed=seed, planner=planner,
+        frame_times=frame_times, frame_prefix=frame_prefix,
     )  # fmt: skip
-    detector = InteractionDetector(
-        ORIGINAL_THRESHOLDS if config.thresholds is None else config.thresholds,
-        None if config.detector_bias is None else config.detector_bias,
-    )
-    learner = Learner(
-        planner.features, Deformation(), update, detector, planner.optimizer,
-        task.vector("initial"), task.start, task.goal,
-        duration=task.duration, sample_period=1.0 / config.sample_rate,
-        learning=config.strategy == "learning", transition_speed=config.transition_speed,
-    )  # fmt: skip
-    initial_weights = learner.weights
-    controller = ImpedanceController(model)
-    desired = TimedTrajectory(planner.desired, task.duration)
-    person = Participant(participant_params, desired, task.task_feature, model, person_rng, dt=dt)
-    bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
-
-    steps = int(round(task.duration / dt)) + 1
-    rows = (steps + log_every - 1) // log_every
-    log = {k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")}
-    #: The person's wrench at the hand (force [N], torque [N·m]); zero while nobody touches it.
-    log["push"] = np.zeros((rows, 6))
-    log_t = np.zeros(rows)
-    world.set_scene(task.scene)
-    world.reset(task.start)
-    measured = np.zeros(model.nq)
-    tau = np.zeros(model.nq)
-    tracking_error = 0.0
-    error: Exception | None = None
-    row = 0
-    frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
-    frames: list[Path] = []
-    try:
-        for k in range(steps):
-            t = k * dt
-            q, qd = world.state()
-            push = person.wrench(t, q)
-            if k % sample_every == 0:
-                measured = (
-                    bias + sensor_rng.normal(0.0, config.sensor_noise, model.nq)
-                    if config.sensor_noise
-                    else bias.copy()
-                )
-                if push is not None:
-                    measured += model.jacobian(HAND, q).T @ np.concatenate(push)
-                learner.observe(t, measured)
-            q_ref, qd_ref, _ = learner.reference(t)
-            controller.torque_implicit(q, qd, q_ref, qd_ref, dt, out=tau)
-            if k % log_every == 0:
-                log_t[row] = t
-                for key, v in (("q", q), ("qd", qd), ("q_ref", q_ref), ("tau", tau), ("u_h", measured)):
-                    log[key][row] = v
-                if push is not None:
-                    log["push"][row] = np.concatenate(push)
-                row += 1
-                if push is None:
-                    gap = model.frame_pose(HAND, q)[:3, 3] - model.frame_pose(HAND, q_ref)[:3, 3]
-                    tracking_error = max(tracking_error, float(np.linalg.norm(gap)))
-            if k in frame_ticks and frame_prefix is not None:
-                frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
-            if push is None:
-                world.step(tau)
-            else:
-                world.step(tau, push[0], push[1])
-    except BaseException as e:  # noqa: BLE001 - the log so far is written first, then it is re-raised
-        error = e
-    history = learner.history()
-    u = history.u_h
-    # The executed path at the plan's waypoint times, scored with the same features.
-    n_wp = task.waypoints
-    idx = np.minimum(
-        np.round(np.linspace(0, task.duration, n_wp) / (dt * log_every)).astype(int), max(row - 1, 0)
-    )
-    executed = log["q"][idx]
-    phi = planner.features.phi(executed)
-    frame = "j2s7s300_link_7"
-    result = EpisodeResult(
-        task=task.name,
-        strategy=config.strategy,
-        effort=float(np.abs(u).sum()),
-        interaction_time=len(history) / config.sample_rate,
-        cost=float(phi[task.task_index]),
-        desired_cost=planner.desired_cost,
-        initial_weights=initial_weights,
-        final_weights=learner.weights,
-        task_index=task.task_index,
-        tracking_error=tracking_error,
-        wall_time=time.perf_counter() - began,
-        executed_path=model.frame_pose(frame, executed)[:, :3, 3],
-        desired_path=model.frame_pose(frame, planner.desired)[:, :3, 3],
-        frames=frames,
-    )
     if log_path is not None:
-        weights_t = np.concatenate([[0.0], history.t])
-        weights = np.vstack([initial_weights, history.weights])
-        result.log = _write_log(
-            Path(log_path),
-            {
-                "t": log_t[:row], **{k: v[:row] for k, v in log.items()},
-                "interaction_t": history.t, "interaction_u_h": u,
-                "weights_t": weights_t, "weights": weights,
-                "plan_t": history.plan_t, "plans": history.plans,
-                "desired": planner.desired, "feature_names": np.array(task.feature_names),
-            },
-        )  # fmt: skip
+        result.log = write_log(Path(log_path), result.log_arrays)
     if isinstance(error, SimulationError):
-        raise SimulationError(f"{task.name}/{config.strategy}: {error} (log so far: {result.log})") from error
+        raise episode_failure(task.name, config.strategy, error, result.log) from error
     if error is not None:
         raise error
     return result

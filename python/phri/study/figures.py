@@ -1,4 +1,5 @@
-"""The study's figures as PNG (matplotlib, Agg backend): the paper's Fig. 4 and Fig. 5."""
+"""The study's figures as PNG (matplotlib, Agg backend): the paper's Fig. 4 and Fig. 5. The path
+figure is :func:`phri.plots.plot_paths`, fed from the episode logs."""
 
 from __future__ import annotations
 
@@ -9,23 +10,16 @@ import numpy as np
 import pandas as pd
 
 from phri.config import Scene
+from phri.plots import REPORT_PATHS, STUDY_COLORS, pyplot
+from phri.plots import plot_paths as plot_path_figure
 
 __all__ = ["COLORS", "plot_cost", "plot_effort_time", "plot_paths", "read_paths"]
 
 #: The paper's colours: impedance grey, learning orange, desired blue.
-COLORS = {"impedance": "#8c8c8c", "learning": "#f28e2b", "desired": "#1f77b4"}
+COLORS = STUDY_COLORS
 #: p below this gets an asterisk (the paper's convention: p < 0.0001).
 STAR = 1e-4
 LINK_7 = "j2s7s300_link_7"
-
-
-def _pyplot():  # type: ignore[no-untyped-def]
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _task_label(task: str, familiarization: str | None, tasks: Sequence[str]) -> str:
@@ -70,7 +64,7 @@ def plot_effort_time(
     familiarization: str | None = None,
 ) -> Path:
     """Fig. 4: mean (± SD) effort and interaction time per task and strategy."""
-    plt = _pyplot()
+    plt = pyplot()
     tasks = list(dict.fromkeys(desc["task"]))
     strategies = list(dict.fromkeys(desc["strategy"]))
     labels = [_task_label(t, familiarization, tasks) for t in tasks]
@@ -99,7 +93,7 @@ def plot_cost(
 ) -> Path:
     """Fig. 5 (left): mean (± SD) task cost per strategy against the desired behaviour's cost, one
     panel per task (the tasks' features have different units)."""
-    plt = _pyplot()
+    plt = pyplot()
     tasks = list(dict.fromkeys(desc["task"]))
     strategies = list(dict.fromkeys(desc["strategy"]))
     fig, axes = plt.subplots(
@@ -158,55 +152,11 @@ def plot_paths(
     title: str = "",
 ) -> Path:
     """Fig. 5 (right): the cup's (link_7) path for each strategy against the desired path — seen
-    from above (x, y) and its height over time. `logs` maps a strategy to its episode log."""
-    plt = _pyplot()
-    scene = scene or Scene()
-    fig, (top, side) = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
-    desired_drawn = False
-    for strategy, log in logs.items():
-        p = read_paths(log)
-        if not desired_drawn:
-            d = p["desired"]
-            top.plot(d[:, 0], d[:, 1], color=COLORS["desired"], lw=2.5, label="desired")
-            side.plot(p["t"], d[:, 2], color=COLORS["desired"], lw=2.5, label="desired")
-            top.plot(*d[0, :2], "ko", ms=5)
-            top.annotate("start", d[0, :2], textcoords="offset points", xytext=(5, 5), fontsize=9)
-            top.plot(*d[-1, :2], "ks", ms=5)
-            top.annotate("goal", d[-1, :2], textcoords="offset points", xytext=(5, 5), fontsize=9)
-            desired_drawn = True
-        e = p["executed"]
-        top.plot(e[:, 0], e[:, 1], color=COLORS.get(strategy), lw=1.8, label=strategy)
-        side.plot(p["t"], e[:, 2], color=COLORS.get(strategy), lw=1.8, label=strategy)
-    import matplotlib.patches as patches
-
-    if task in ("laptop", "human"):
-        (cx, cy), radius = (
-            (scene.laptop_center, scene.laptop_radius)
-            if task == "laptop"
-            else (scene.human_center, scene.human_radius)
-        )
-        top.add_patch(patches.Circle((cx, cy), radius, fill=False, ls="--", color="red", lw=1))
-        top.annotate(f"{task} keep-out ({radius} m)", (cx, cy - radius), ha="center",
-                     va="top", fontsize=9, color="red")  # fmt: skip
-    if task == "laptop":
-        lx, ly = scene.laptop_center
-        top.add_patch(patches.Rectangle((lx - 0.115, ly + 0.1 - 0.15), 0.23, 0.30, color="0.2", alpha=0.6))
-    side.axhline(scene.table_height, color="saddlebrown", lw=1.5)
-    side.annotate("table top", (0, scene.table_height), textcoords="offset points", xytext=(3, 3), fontsize=9,
-                  color="saddlebrown")  # fmt: skip
-    top.set_aspect("equal", adjustable="datalim")
-    top.set_xlabel("x [m]")
-    top.set_ylabel("y [m]")
-    top.set_title("cup (link_7) path seen from above")
-    side.set_xlabel("time [s]")
-    side.set_ylabel("height z [m]")
-    side.set_title("cup height over time")
-    for ax in (top, side):
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=9)
-    if title:
-        fig.suptitle(title, fontsize=12)
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    from above (x, y) and its height over time. `logs` maps a strategy to its episode log; the desired
+    path is that of the first log."""
+    paths = {strategy: read_paths(log) for strategy, log in logs.items()}
+    first = next(iter(paths.values()))
+    return plot_path_figure(
+        path, (first["t"], first["desired"]), {s: (p["t"], p["executed"]) for s, p in paths.items()},
+        REPORT_PATHS, scene=scene or Scene(), task=task, title=title,
+    )  # fmt: skip

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -28,6 +27,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from phri.atomic import write_atomic
+from phri.study import markdown
 from phri.study.errors import QuestionnaireError
 
 if TYPE_CHECKING:
@@ -162,12 +163,7 @@ def _append_rows(path: Path, rows: Sequence[Mapping[str, object]]) -> None:
     writer = csv.writer(buffer, lineterminator="\n")
     for row in rows:
         writer.writerow([row[c] for c in COLUMNS])
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as f:
-        f.write(old + buffer.getvalue().encode("utf-8"))
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    write_atomic(path, old + buffer.getvalue().encode("utf-8"))
 
 
 def import_responses(source: str | Path, target: str | Path, *, study: StudyConfig | None = None) -> int:
@@ -328,10 +324,6 @@ def table1(responses: pd.DataFrame, strategies: Sequence[str] = ("impedance", "l
     return pd.DataFrame(rows)
 
 
-def _p(p: float) -> str:
-    return "—" if not np.isfinite(p) else ("<.0001" if p < 1e-4 else f"{p:.3f}".lstrip("0"))
-
-
 def table1_markdown(table: pd.DataFrame, strategies: Sequence[str] = ("impedance", "learning")) -> str:
     """Table 1 as Markdown: scale, questions, α, mean per strategy, F(df1, df2), p."""
     df = table.dropna(subset=["df2"])
@@ -345,15 +337,19 @@ def table1_markdown(table: pd.DataFrame, strategies: Sequence[str] = ("impedance
         "p",
         "partial η²",
     ]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for _, r in table.iterrows():
-        cells = [
-            str(r["scale"]), str(r["items"]).replace("|", "\\|"), _num(r["alpha"], 2),
+    rows = (
+        [
+            str(r["scale"]),
+            str(r["items"]),
+            _num(r["alpha"], 2),
             *(_num(r[f"mean_{s}"], 2) for s in strategies),
-            _num(r["F"], 2), _p(r["p"]), _num(r["partial_eta_sq"], 2),
-        ]  # fmt: skip
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+            _num(r["F"], 2),
+            markdown.p_value(r["p"]),
+            _num(r["partial_eta_sq"], 2),
+        ]
+        for _, r in table.iterrows()
+    )
+    return markdown.table(head, rows)
 
 
 def _num(x: object, digits: int) -> str:

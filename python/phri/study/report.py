@@ -14,14 +14,15 @@ import os
 import secrets
 import shutil
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
-from phri.study import analysis, figures
+from phri.study import analysis, figures, markdown
 from phri.study.errors import StudyConfigError, StudyFileError
+from phri.study.markdown import number, p_value
 from phri.study.protocol import StudyConfig
 from phri.study.results import load_results, read_manifest
 
@@ -31,43 +32,28 @@ __all__ = ["QUESTIONNAIRE_CSV", "write_report"]
 QUESTIONNAIRE_CSV = "questionnaire.csv"
 
 
-def _fmt(x: object, digits: int = 3) -> str:
-    try:
-        v = float(x)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return str(x)
-    if not np.isfinite(v):
-        return "—"
-    if v != 0 and (abs(v) >= 1e5 or abs(v) < 10**-(digits)):
-        return f"{v:.{digits - 1}e}"
-    return f"{v:.{digits}f}"
-
-
-def _p(p: object) -> str:
-    p = float(p)  # type: ignore[arg-type]
-    return "—" if not np.isfinite(p) else ("< .0001" if p < 1e-4 else f"{p:.4f}")
-
-
 def _md(table: pd.DataFrame, formats: dict[str, Callable[[object], str]] | None = None) -> str:
+    """`table` as Markdown; `formats` by column (default: strings as they are, numbers as
+    :func:`markdown.number`)."""
     formats = formats or {}
-    head = [str(c) for c in table.columns]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for _, row in table.iterrows():
-        cells = [
-            formats.get(c, lambda v: v if isinstance(v, str) else _fmt(v))(row[c]) for c in table.columns
-        ]
-        lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |")
-    return "\n".join(lines) + "\n"
+
+    def cell(column: str, value: object) -> str:
+        if column in formats:
+            return formats[column](value)
+        return value if isinstance(value, str) else number(value)
+
+    rows = ([cell(c, row[c]) for c in table.columns] for _, row in table.iterrows())
+    return markdown.table([str(c) for c in table.columns], rows)
 
 
 def _anova_md(table: pd.DataFrame) -> str:
     if not len(table):
         return "_Not enough data (needs at least two levels of a factor, and two complete participants)._\n"
     t = table.copy()
-    t.insert(0, "F(df1, df2)", [f"F({r.df1:g}, {r.df2:g}) = {_fmt(r.F, 2)}" for r in t.itertuples()])
+    t.insert(0, "F(df1, df2)", [f"F({r.df1:g}, {r.df2:g}) = {number(r.F, 2)}" for r in t.itertuples()])
     t["measure"] = t["measure"].map(lambda m: analysis.MEASURES.get(m, m))
     cols = [c for c in ("task", "measure", "effect", "F(df1, df2)", "p", "partial_eta_sq") if c in t]
-    return _md(t[cols].rename(columns={"partial_eta_sq": "partial η²"}), {"p": _p, "F(df1, df2)": str})
+    return _md(t[cols].rename(columns={"partial_eta_sq": "partial η²"}), {"p": p_value, "F(df1, df2)": str})
 
 
 def _descriptives_md(desc: pd.DataFrame) -> str:
@@ -75,11 +61,12 @@ def _descriptives_md(desc: pd.DataFrame) -> str:
     for r in desc.itertuples():
         rows.append({
             "task": r.task, "strategy": r.strategy, "n": str(r.n),
-            "effort [N·m]": f"{_fmt(r.effort_mean, 1)} ± {_fmt(r.effort_sd, 1)}",
-            "interaction time [s]": f"{_fmt(r.interaction_time_mean, 2)} ± {_fmt(r.interaction_time_sd, 2)}",
-            "cost": f"{_fmt(r.cost_mean)} ± {_fmt(r.cost_sd)}",
-            "desired cost": _fmt(r.desired_cost_mean),
-            "abs(cost − desired)": f"{_fmt(r.cost_error_mean)} ± {_fmt(r.cost_error_sd)}",
+            "effort [N·m]": f"{number(r.effort_mean, 1)} ± {number(r.effort_sd, 1)}",
+            "interaction time [s]":
+                f"{number(r.interaction_time_mean, 2)} ± {number(r.interaction_time_sd, 2)}",
+            "cost": f"{number(r.cost_mean)} ± {number(r.cost_sd)}",
+            "desired cost": number(r.desired_cost_mean),
+            "abs(cost − desired)": f"{number(r.cost_error_mean)} ± {number(r.cost_error_sd)}",
         })  # fmt: skip
     return _md(pd.DataFrame(rows), {c: str for c in rows[0]}) if rows else "_No completed episodes._\n"
 
@@ -211,37 +198,51 @@ def write_report(
     return final / "report.md"
 
 
-def _write(
-    out: Path,
-    run_dir: Path,
-    config: StudyConfig,
-    manifest: dict[str, Any],
-    raw: pd.DataFrame,
-    questionnaire: str | Path | None,
-    participant: int | None,
-    task: str | None,
-) -> None:
-    """Writes every file of the report into the (new, empty) folder `out`."""
-    from phri.study import questionnaire as q
+@dataclass
+class _Statistics:
+    """The analysed tables of a study: the completed episodes and their statistics."""
 
+    data: pd.DataFrame
+    #: The completed episodes of the experimental tasks (familiarization left out).
+    experimental: pd.DataFrame
+    descriptives: pd.DataFrame
+    pooled: pd.DataFrame
+    rm: pd.DataFrame
+    #: The (participant, task) pairs the repeated-measures ANOVA left out.
+    unmatched: pd.DataFrame
+    by_task: pd.DataFrame
+
+
+def _statistics(raw: pd.DataFrame, config: StudyConfig) -> _Statistics:
+    """Descriptives, the pooled and the repeated-measures ANOVAs, and the per-task tests."""
     data = analysis.prepare(raw)
     fam = config.familiarization
     experimental = data[data["task"] != fam] if fam is not None else data
-    desc = analysis.descriptives(data)
     pooled = pd.concat(
         [analysis.factorial_anova(experimental, m) for m in analysis.MEASURES], ignore_index=True
     )
     rm = pd.concat([analysis.rm_anova(experimental, m) for m in analysis.MEASURES], ignore_index=True)
     _, unmatched = analysis.matched_tasks(experimental)
-    by_task = analysis.task_tests(data)
-    desc.to_csv(out / "descriptives.csv", index=False)
-    pooled.to_csv(out / "anova_pooled.csv", index=False)
-    rm.to_csv(out / "anova_rm.csv", index=False)
-    by_task.to_csv(out / "anova_by_task.csv", index=False)
+    return _Statistics(
+        data, experimental, analysis.descriptives(data), pooled, rm, unmatched, analysis.task_tests(data)
+    )
 
+
+def _write_tables(out: Path, stats: _Statistics) -> None:
+    """The statistics as CSV files."""
+    stats.descriptives.to_csv(out / "descriptives.csv", index=False)
+    stats.pooled.to_csv(out / "anova_pooled.csv", index=False)
+    stats.rm.to_csv(out / "anova_rm.csv", index=False)
+    stats.by_task.to_csv(out / "anova_by_task.csv", index=False)
+
+
+def _introduction(
+    run_dir: Path, config: StudyConfig, manifest: dict[str, Any], raw: pd.DataFrame
+) -> list[str]:
+    """The report's title, what the study is, how many episodes it has, and the measures."""
+    fam = config.familiarization
     n_total, n_done, n_failed = config.episodes, len(raw), int((raw["status"] != "ok").sum())
-    exp_tasks = [t for t in dict.fromkeys(data["task"]) if t != fam]
-    lines = [
+    return [
         "# phri study report",
         "",
         f"Study folder `{run_dir}`: {config.participants} simulated participants, strategies "
@@ -276,37 +277,59 @@ def _write(
         "for the desired behaviour (the plan for the true weights). The statistics use the cost *relative to "
         "the desired one*, |cost − desired cost| (the paper's footnote 2).",
         "",
+    ]
+
+
+def _statistics_md(stats: _Statistics, config: StudyConfig) -> list[str]:
+    """The statistics sections: descriptives, the pooled, repeated-measures and per-task ANOVAs."""
+    exp_tasks = [t for t in dict.fromkeys(stats.data["task"]) if t != config.familiarization]
+    by_task = stats.by_task
+    return [
         "## Per task and strategy (mean ± SD)",
         "",
-        _descriptives_md(desc),
+        _descriptives_md(stats.descriptives),
         "## Factorial ANOVA over pooled trials (the paper's analysis)",
         "",
-        f"Strategy × attempt as between factors over the {len(experimental)} pooled trials of the tasks "
-        f"{', '.join(exp_tasks)} (familiarization left out), statsmodels OLS with type II sums of squares; "
-        f"it treats one participant's trials as independent. {_pooled_form(pooled)}",
+        f"Strategy × attempt as between factors over the {len(stats.experimental)} pooled trials of the "
+        f"tasks {', '.join(exp_tasks)} (familiarization left out), statsmodels OLS with type II sums of "
+        f"squares; it treats one participant's trials as independent. {_pooled_form(stats.pooled)}",
         "",
-        _anova_md(pooled),
+        _anova_md(stats.pooled),
         "## Repeated-measures ANOVA (participant as the subject)",
         "",
         "statsmodels `AnovaRM`, strategy × attempt within participants, each participant's trials averaged "
         "over the experimental tasks: F(1, P − 1). Partial η² = F·df1 / (F·df1 + df2)."
-        + _matching_note(unmatched, experimental),
+        + _matching_note(stats.unmatched, stats.experimental),
         "",
-        _anova_md(rm),
+        _anova_md(stats.rm),
         "### Per task",
         "",
         "The same repeated-measures ANOVA within each task; its strategy effect gives the asterisks "
         "(p < 0.0001) of the figures.",
         "",
         _anova_md(by_task[by_task["effect"] == "strategy"]) if len(by_task) else _anova_md(by_task),
-        "## Figures",
-        "",
     ]
-    if len(data):
+
+
+def _figures(
+    out: Path,
+    run_dir: Path,
+    config: StudyConfig,
+    raw: pd.DataFrame,
+    stats: _Statistics,
+    participant: int | None,
+    task: str | None,
+) -> list[str]:
+    """Draws Fig. 4 and Fig. 5 into `out`; returns the report's figures section."""
+    lines = ["## Figures", ""]
+    fam = config.familiarization
+    if len(stats.data):
         fig4 = figures.plot_effort_time(
-            desc, out / "fig4_effort_time.png", tests=by_task, familiarization=fam
+            stats.descriptives, out / "fig4_effort_time.png", tests=stats.by_task, familiarization=fam
         )
-        fig5 = figures.plot_cost(desc, out / "fig5_cost.png", tests=by_task, familiarization=fam)
+        fig5 = figures.plot_cost(
+            stats.descriptives, out / "fig5_cost.png", tests=stats.by_task, familiarization=fam
+        )
         lines += [
             f"![Effort and interaction time]({fig4.name})",
             "",
@@ -321,47 +344,69 @@ def _write(
     else:
         lines += ["_No completed episodes yet: no figures._", ""]
     sample = _sample_logs(run_dir, raw, participant, task, config.strategies)
-    if sample is not None:
-        p, t, logs = sample
-        scene = config.load_tasks()[t].scene
-        fig_paths = figures.plot_paths(
-            logs, out / "fig5_paths.png", scene=scene, task=t,
-            title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
-        )  # fmt: skip
-        lines += [
-            f"![Sample participant's paths]({fig_paths.name})",
-            "",
-            f"**Fig. 5 (right)** Participant {p}, task '{t}', first attempt: the cup's path (link_7) with "
-            "each strategy against the desired path, from the episode logs (100 Hz).",
-            "",
-        ]
-    else:
+    if sample is None:
         who = f"participant {participant}" if participant is not None else "a sample participant"
         where = f" in task '{task}'" if task is not None else ""
-        lines += [f"_No episode logs for {who} with every strategy{where} yet: no path figure._", ""]
+        return lines + [f"_No episode logs for {who} with every strategy{where} yet: no path figure._", ""]
+    p, t, logs = sample
+    fig_paths = figures.plot_paths(
+        logs, out / "fig5_paths.png", scene=config.load_tasks()[t].scene, task=t,
+        title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
+    )  # fmt: skip
+    return lines + [
+        f"![Sample participant's paths]({fig_paths.name})",
+        "",
+        f"**Fig. 5 (right)** Participant {p}, task '{t}', first attempt: the cup's path (link_7) with "
+        "each strategy against the desired path, from the episode logs (100 Hz).",
+        "",
+    ]
 
-    qpath = Path(questionnaire) if questionnaire is not None else run_dir / QUESTIONNAIRE_CSV
-    lines += ["## Questionnaire (Table 1)", ""]
-    if qpath.exists():
-        responses = q.read_responses(qpath)
-        t1 = q.table1(responses, config.strategies)
-        t1.to_csv(out / "table1.csv", index=False)
-        lines += [
-            f"From `{qpath}` ({len(responses)} questionnaires, {responses['participant'].nunique()} "
-            f"participants). Items {', '.join(map(str, q.REVERSED))} are reverse-scored (8 − x), so higher "
-            "is better on every scale; a scale's score is the mean of its items. Cronbach's α as Hoyt's "
-            "ANOVA reliability (statsmodels); one-way repeated-measures ANOVA per scale (statsmodels "
-            "AnovaRM).",
-            "",
-            q.table1_markdown(t1, config.strategies),
-        ]
-    else:
-        lines += [
+
+def _questionnaire(out: Path, qpath: Path, config: StudyConfig) -> list[str]:
+    """Table 1 from the answers in `qpath` (also written as table1.csv), if there are any."""
+    from phri.study import questionnaire as q
+
+    lines = ["## Questionnaire (Table 1)", ""]
+    if not qpath.exists():
+        return lines + [
             f"_No questionnaire answers (`{QUESTIONNAIRE_CSV}` in the study folder): simulated participants "
             "do not fill in surveys. Collect them with `phri questionnaire` or import a CSV._",
             "",
         ]
-    lines += [
+    responses = q.read_responses(qpath)
+    t1 = q.table1(responses, config.strategies)
+    t1.to_csv(out / "table1.csv", index=False)
+    return lines + [
+        f"From `{qpath}` ({len(responses)} questionnaires, {responses['participant'].nunique()} "
+        f"participants). Items {', '.join(map(str, q.REVERSED))} are reverse-scored (8 − x), so higher "
+        "is better on every scale; a scale's score is the mean of its items. Cronbach's α as Hoyt's "
+        "ANOVA reliability (statsmodels); one-way repeated-measures ANOVA per scale (statsmodels "
+        "AnovaRM).",
+        "",
+        q.table1_markdown(t1, config.strategies),
+    ]
+
+
+def _write(
+    out: Path,
+    run_dir: Path,
+    config: StudyConfig,
+    manifest: dict[str, Any],
+    raw: pd.DataFrame,
+    questionnaire: str | Path | None,
+    participant: int | None,
+    task: str | None,
+) -> None:
+    """Writes every file of the report into the (new, empty) folder `out`: the statistics as CSV,
+    the figures, and report.md."""
+    stats = _statistics(raw, config)
+    _write_tables(out, stats)
+    qpath = Path(questionnaire) if questionnaire is not None else run_dir / QUESTIONNAIRE_CSV
+    lines = [
+        *_introduction(run_dir, config, manifest, raw),
+        *_statistics_md(stats, config),
+        *_figures(out, run_dir, config, raw, stats, participant, task),
+        *_questionnaire(out, qpath, config),
         "## Files",
         "",
         "`descriptives.csv`, `anova_pooled.csv`, `anova_rm.csv`, `anova_by_task.csv`"

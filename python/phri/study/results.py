@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from phri.atomic import partial_path, write_atomic
 from phri.study.errors import StudyFileError, StudyLockedError, StudyMismatchError
 from phri.study.protocol import EpisodeSpec, StudyConfig, participant_params, schedule, strategy_order
 
@@ -138,15 +139,6 @@ def _parse_rows(path: Path, text: str) -> list[dict[str, Any]]:
                 ) from None
         rows.append(row)
     return rows
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def read_manifest(run_dir: str | Path) -> tuple[StudyConfig, dict[str, Any]] | None:
@@ -304,10 +296,10 @@ class ResultStore:
         writer.writerow(["participant", "strategy_order", *fields])
         for p, pp in enumerate(params, start=1):
             writer.writerow([p, " ".join(strategy_order(self.config, p)), *pp.as_dict().values()])
-        _write_atomic(self.run_dir / PARTICIPANTS_CSV, people.getvalue().encode())
-        _write_atomic(self.run_dir / RESULTS_CSV, _format_header().encode())
+        write_atomic(self.run_dir / PARTICIPANTS_CSV, people.getvalue().encode())
+        write_atomic(self.run_dir / RESULTS_CSV, _format_header().encode())
         # The manifest last: a folder with a manifest is a complete, resumable study folder.
-        _write_atomic(self.run_dir / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
+        write_atomic(self.run_dir / MANIFEST, (json.dumps(manifest, indent=2) + "\n").encode())
 
     def _note_version(self, manifest: dict[str, Any]) -> None:
         """Adds this phri version to the manifest's `resumed_with` if it is not the one that started
@@ -318,7 +310,7 @@ class ResultStore:
         if manifest.get("phri_version") == __version__ or __version__ in versions:
             return
         updated = {**manifest, "resumed_with": [*versions, __version__]}
-        _write_atomic(self.run_dir / MANIFEST, (json.dumps(updated, indent=2) + "\n").encode())
+        write_atomic(self.run_dir / MANIFEST, (json.dumps(updated, indent=2) + "\n").encode())
 
     def _load(self) -> None:
         path = self.run_dir / RESULTS_CSV
@@ -351,7 +343,7 @@ class ResultStore:
         for spec in self.specs:
             name = spec.log_name(self.log_width)
             if name not in recorded:
-                for stale in (logs / name, logs / (name + ".partial")):
+                for stale in (logs / name, partial_path(logs / name)):
                     stale.unlink(missing_ok=True)
 
     # -- state -----------------------------------------------------------------------------------
@@ -371,10 +363,7 @@ class ResultStore:
         if spec.key in self.rows:
             raise StudyFileError(f"{self.run_dir}: episode {spec.key} is already recorded")
         if log:
-            path = self.run_dir / LOGS / spec.log_name(self.log_width)
-            if path.exists():
-                raise FileExistsError(f"{path} exists; phri never overwrites a log")
-            _write_atomic(path, log)
+            write_atomic(self.run_dir / LOGS / spec.log_name(self.log_width), log, overwrite=False)
         with open(self.run_dir / RESULTS_CSV, "a", encoding="utf-8", newline="") as f:
             f.write(_format_row(row))
             f.flush()
@@ -391,13 +380,13 @@ class ResultStore:
         table = self.table()
         buffer = io.BytesIO()
         table.to_parquet(buffer, index=False)
-        _write_atomic(self.run_dir / RESULTS_PARQUET, buffer.getvalue())
+        write_atomic(self.run_dir / RESULTS_PARQUET, buffer.getvalue())
         if sort_csv:
             text = _format_header() + "".join(
                 _format_row(self.rows[s.key]) for s in self.specs if s.key in self.rows
             )
             if (self.run_dir / RESULTS_CSV).read_text(encoding="utf-8") != text:
-                _write_atomic(self.run_dir / RESULTS_CSV, text.encode("utf-8"))
+                write_atomic(self.run_dir / RESULTS_CSV, text.encode("utf-8"))
 
     def close(self) -> None:
         if self._lock_fd is not None:

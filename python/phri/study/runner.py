@@ -1,22 +1,21 @@
 """Runs episodes of a study: one simulator World, reused across episodes, and one Planner per task.
 
 Every backend (serial, process pool, Ray) wraps an :class:`EpisodeRunner`; what comes back is an
-:class:`Outcome` — the table row and the episode's log as bytes — so that the process that owns the
-study folder is the only one that writes to it (and a cluster needs no shared file system). Likewise
-the tasks: the process that starts the study loads and checks the task files once and hands the
-:class:`~phri.config.Task` objects to every runner, so no worker reads a task file.
+:class:`Outcome` — the table row and the episode's log as the bytes of its .npz, made in memory — so
+that the process that owns the study folder is the only one that writes to it, once (and a cluster
+needs no shared file system). Likewise the tasks: the process that starts the study loads and checks
+the task files once and hands the :class:`~phri.config.Task` objects to every runner, so no worker
+reads a task file.
 """
 
 from __future__ import annotations
 
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
 from phri.config import Task
 from phri.exceptions import SimulationError
-from phri.sim.episode import Planner, run_episode
+from phri.sim.episode import Planner, encode_log, episode_failure, simulate_episode
 from phri.sim.participant import ParticipantParams
 from phri.sim.world import World
 from phri.study.protocol import EpisodeSpec, StudyConfig, participant_params
@@ -27,7 +26,8 @@ __all__ = ["EpisodeRunner", "Outcome"]
 
 @dataclass
 class Outcome:
-    """One finished episode: its row of the results table and its compressed .npz log."""
+    """One finished episode: its row of the results table and its compressed .npz log (the bytes of the
+    file, made in memory; empty: no log)."""
 
     spec: EpisodeSpec
     row: dict[str, object]
@@ -68,19 +68,21 @@ class EpisodeRunner:
         "failed" (metrics NaN, the message in `error`) and the partial log; other errors propagate."""
         task = self.tasks[spec.task]
         name = spec.log_name(self.log_width)
-        with tempfile.TemporaryDirectory(prefix="phri-episode-") as folder:
-            path = Path(folder) / name
-            try:
-                result = run_episode(
-                    task, self.world, self.participant(spec.participant),
-                    self.config.episode_config(spec.strategy),
-                    seed=spec.seed, planner=self.planner(spec.task), log_path=path,
-                )  # fmt: skip
-                row = episode_row(spec, result, task, f"logs/{name}")
-            except SimulationError as e:
-                row = failed_row(spec, str(e), f"logs/{name}" if path.exists() else "")
-            log = path.read_bytes() if path.exists() else b""
-        return Outcome(spec, row, log)
+        try:
+            result, error = simulate_episode(
+                task, self.world, self.participant(spec.participant),
+                self.config.episode_config(spec.strategy), seed=spec.seed, planner=self.planner(spec.task),
+            )  # fmt: skip
+        except SimulationError as e:  # before the simulation started: no log
+            return Outcome(spec, failed_row(spec, str(e), ""), b"")
+        if error is not None and not isinstance(error, SimulationError):
+            raise error
+        log = f"logs/{name}"
+        if isinstance(error, SimulationError):
+            row = failed_row(spec, str(episode_failure(task.name, spec.strategy, error, log)), log)
+        else:
+            row = episode_row(spec, result, task, log)
+        return Outcome(spec, row, encode_log(result.log_arrays))
 
     def close(self) -> None:
         if self._world is not None:

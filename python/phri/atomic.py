@@ -1,0 +1,56 @@
+"""Atomic file writes: a file that phri writes is either its old content or its new content, never a
+torn mix, even when the process is killed or the machine loses power mid-write.
+
+The data go to a temporary file in the same folder (``NAME.partial``: same file system, so the
+rename is atomic; a leftover one marks a write that never finished), which is flushed and fsync'ed,
+then renamed over the target with :func:`os.replace`; the folder is fsync'ed too (where the system
+allows it) so that the rename itself survives a crash.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+__all__ = ["PARTIAL_SUFFIX", "partial_path", "write_atomic"]
+
+#: Suffix of the temporary file a write goes through.
+PARTIAL_SUFFIX = ".partial"
+
+
+def partial_path(path: Path) -> Path:
+    """The temporary file a write of `path` goes through (a leftover one is an unfinished write)."""
+    return path.with_name(path.name + PARTIAL_SUFFIX)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Makes a rename in `folder` durable; a no-op where folders cannot be opened (Windows)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def write_atomic(path: str | Path, data: bytes, *, overwrite: bool = True) -> Path:
+    """Writes `data` to `path` atomically and durably; returns `path`.
+
+    With `overwrite` False an existing `path` is a :class:`FileExistsError` and nothing is written
+    (for files that are written once, such as episode logs; the caller is the folder's only writer)."""
+    path = Path(path)
+    if not overwrite and path.exists():
+        raise FileExistsError(f"{path} exists; phri never overwrites it")
+    tmp = partial_path(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_folder(path.parent)
+    return path

@@ -34,4 +34,3 @@ def test_stub_literal_matches_the_core(alias, constant):
     runtime = getattr(_phri, constant)
     assert isinstance(runtime, tuple)
     assert literals[alias] == runtime
-

@@ -14,6 +14,7 @@ pub mod data;
 pub mod deform;
 pub mod dynamics;
 pub mod error;
+pub mod feature_specs;
 pub mod features;
 pub mod impedance;
 pub mod interaction;
@@ -21,6 +22,7 @@ pub mod kinematics;
 pub mod learner;
 pub mod model;
 pub mod reference;
+pub mod scene;
 pub mod trajopt;
 pub mod update;
 

@@ -16,7 +16,6 @@ import numpy as np
 
 from phri._phri import (
     Deformation,
-    Features,
     ImpedanceController,
     InteractionDetector,
     Learner,
@@ -25,7 +24,7 @@ from phri._phri import (
     TrajoptInfo,
     WeightUpdate,
 )
-from phri.config import Task
+from phri.config import TABLE, Task
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.participant import Participant, ParticipantParams
 from phri.sim.world import HAND, World, WorldParams
@@ -45,7 +44,7 @@ STRATEGIES = ("impedance", "learning")
 RULES = ("all", "max", "confidence")
 #: The tool point stays this far above the table top (the original kept a finger above z = 0) [m].
 HAND_CLEARANCE = 0.1016
-#: link_7's origin (the cup) stays this far above the table top [m].
+#: The features' point (the cup: link_7's origin on the JACO2) stays this far above the table top [m].
 CUP_CLEARANCE = 0.06
 #: Plans move each joint at most this fraction of its velocity limit (between waypoints).
 VELOCITY_MARGIN = 0.5
@@ -199,16 +198,17 @@ class Planner:
     """The task's features and optimiser, and the plans for its initial and true weights."""
 
     def __init__(self, task: Task, world: World) -> None:
-        s = task.scene
         self.task = task
-        self.features = Features(
-            world.model, task.feature_names, laptop_center=s.laptop_center, human_center=s.human_center,
-            laptop_radius=s.laptop_radius, human_radius=s.human_radius, samples=s.samples,
-        )  # fmt: skip
-        clearance = [
-            (HAND, s.table_height + HAND_CLEARANCE),
-            ("j2s7s300_link_7", s.table_height + CUP_CLEARANCE),
-        ]
+        self.features = task.feature_set(world.model)
+        #: Height of the table's top [m], which the hand and the cup stay above (None: no table in
+        #: the task's scene, so no clearance).
+        table = task.scene.get(TABLE)
+        self.table_top = None if table is None else table.top
+        clearance = (
+            []
+            if self.table_top is None
+            else [(HAND, self.table_top + HAND_CLEARANCE), (self.features.frame, self.table_top + CUP_CLEARANCE)]
+        )
         # Joint speeds within the arm's limits, with a margin for tracking.
         spacing = task.duration / (task.waypoints - 1)
         max_step = VELOCITY_MARGIN * world.model.velocity_limits * spacing
@@ -232,8 +232,8 @@ class Planner:
             raise PlanningError(
                 f"{task.source}: the plan for the {weights} weights cannot keep the hand "
                 f"{HAND_CLEARANCE} m and the cup {CUP_CLEARANCE} m above the table top "
-                f"(z = {task.scene.table_height} m): it dips {info.max_violation:.3f} m below; "
-                "check start, goal and scene.table_height"
+                f"(z = {self.table_top} m): it dips {info.max_violation:.3f} m below; "
+                f"check start, goal and [scene.{TABLE}]"
             )
         if excess[i, j] > STEP_TOLERANCE * self.max_step[j]:
             needed = task.duration * (1 + excess[i, j] / self.max_step[j])
@@ -371,7 +371,7 @@ def run_episode(
     )
     executed = log["q"][idx]
     phi = planner.features.phi(executed)
-    frame = "j2s7s300_link_7"
+    frame = planner.features.frame
     result = EpisodeResult(
         task=task.name,
         strategy=config.strategy,

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from phri.config import Scene
+from phri._phri import Scene
 
 __all__ = ["COLORS", "plot_cost", "plot_effort_time", "plot_paths", "read_paths"]
 
@@ -16,7 +16,6 @@ __all__ = ["COLORS", "plot_cost", "plot_effort_time", "plot_paths", "read_paths"
 COLORS = {"impedance": "#8c8c8c", "learning": "#f28e2b", "desired": "#1f77b4"}
 #: p below this gets an asterisk (the paper's convention: p < 0.0001).
 STAR = 1e-4
-LINK_7 = "j2s7s300_link_7"
 
 
 def _pyplot():  # type: ignore[no-untyped-def]
@@ -139,13 +138,14 @@ def read_paths(log: str | Path) -> dict[str, np.ndarray]:
     with np.load(log) as data:
         t, q, desired = data["t"], data["q"], data["desired"]
     robot = Robot.jaco2()
+    cup = robot.feature_frame
     duration = float(t[-1]) if len(t) > 1 else 1.0
     plan = TimedTrajectory(desired, duration)
     q_desired = plan.sample_many(t)[0]
     return {
         "t": t,
-        "executed": robot.frame_pose(LINK_7, q)[:, :3, 3],
-        "desired": robot.frame_pose(LINK_7, q_desired)[:, :3, 3],
+        "executed": robot.frame_pose(cup, q)[:, :3, 3],
+        "desired": robot.frame_pose(cup, q_desired)[:, :3, 3],
     }
 
 
@@ -156,9 +156,11 @@ def plot_paths(
     scene: Scene | None = None,
     task: str = "",
     title: str = "",
+    keep_out: tuple[tuple[float, float], float] | None = None,
 ) -> Path:
     """Fig. 5 (right): the cup's (link_7) path for each strategy against the desired path — seen
-    from above (x, y) and its height over time. `logs` maps a strategy to its episode log."""
+    from above (x, y) and its height over time. `logs` maps a strategy to its episode log; `scene`'s
+    laptop and table top and the task's `keep_out` circle (centre, radius [m]) are drawn if given."""
     plt = _pyplot()
     scene = scene or Scene()
     fig, (top, side) = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
@@ -179,21 +181,19 @@ def plot_paths(
         side.plot(p["t"], e[:, 2], color=COLORS.get(strategy), lw=1.8, label=strategy)
     import matplotlib.patches as patches
 
-    if task in ("laptop", "human"):
-        (cx, cy), radius = (
-            (scene.laptop_center, scene.laptop_radius)
-            if task == "laptop"
-            else (scene.human_center, scene.human_radius)
-        )
+    if keep_out is not None:
+        (cx, cy), radius = keep_out
         top.add_patch(patches.Circle((cx, cy), radius, fill=False, ls="--", color="red", lw=1))
         top.annotate(f"{task} keep-out ({radius} m)", (cx, cy - radius), ha="center",
                      va="top", fontsize=9, color="red")  # fmt: skip
-    if task == "laptop":
-        lx, ly = scene.laptop_center
-        top.add_patch(patches.Rectangle((lx - 0.115, ly + 0.1 - 0.15), 0.23, 0.30, color="0.2", alpha=0.6))
-    side.axhline(scene.table_height, color="saddlebrown", lw=1.5)
-    side.annotate("table top", (0, scene.table_height), textcoords="offset points", xytext=(3, 3), fontsize=9,
-                  color="saddlebrown")  # fmt: skip
+    laptop, table = scene.get("laptop"), scene.get("table")
+    if task == "laptop" and laptop is not None and laptop.size is not None:
+        (lx, ly, _), (sx, sy, _) = laptop.position, laptop.size
+        top.add_patch(patches.Rectangle((lx - sx / 2, ly - sy / 2), sx, sy, color="0.2", alpha=0.6))
+    if table is not None and table.top is not None:
+        side.axhline(table.top, color="saddlebrown", lw=1.5)
+        side.annotate("table top", (0, table.top), textcoords="offset points", xytext=(3, 3), fontsize=9,
+                      color="saddlebrown")  # fmt: skip
     top.set_aspect("equal", adjustable="datalim")
     top.set_xlabel("x [m]")
     top.set_ylabel("y [m]")

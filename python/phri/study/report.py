@@ -323,9 +323,9 @@ def _write(
     sample = _sample_logs(run_dir, raw, participant, task, config.strategies)
     if sample is not None:
         p, t, logs = sample
-        scene = config.load_tasks()[t].scene
+        shown = config.load_tasks()[t]
         fig_paths = figures.plot_paths(
-            logs, out / "fig5_paths.png", scene=scene, task=t,
+            logs, out / "fig5_paths.png", scene=shown.scene, task=t, keep_out=shown.keep_out_circle(t),
             title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
         )  # fmt: skip
         lines += [

@@ -17,7 +17,7 @@ __all__ = ["Reader", "did_you_mean", "finite", "unknown_key"]
 
 
 def did_you_mean(name: str, known: Sequence[str]) -> str:
-    """"; did you mean 'x'?" for the closest of `known` to `name`, or ""."""
+    """ "; did you mean 'x'?" for the closest of `known` to `name`, or ""."""
     close = difflib.get_close_matches(name, list(known), n=1)
     return f"; did you mean '{close[0]}'?" if close else ""
 
@@ -37,7 +37,8 @@ def unknown_key(source: str, path: str, key: str, allowed: tuple[str, ...]) -> C
     table = f"table [{path}]" if path else "the top-level table"
     full = f"{path}.{key}" if path else key
     return ConfigError(
-        f"{source}: unknown key '{full}' in {table}; allowed keys: {', '.join(allowed)}{did_you_mean(key, allowed)}"
+        f"{source}: unknown key '{full}' in {table}; allowed keys: {', '.join(allowed)}"
+        f"{did_you_mean(key, allowed)}"
     )
 
 

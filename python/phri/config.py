@@ -22,7 +22,7 @@ import numpy as np
 
 from phri import exceptions
 from phri._phri import FEATURE_NAMES, FEATURE_PARAMETERS, Features, Robot, Scene, SceneObject
-from phri._validate import Reader, did_you_mean, finite
+from phri._validate import Reader, did_you_mean
 from phri.exceptions import ConfigError, UnknownNameError
 
 if sys.version_info >= (3, 11):
@@ -96,7 +96,11 @@ class Task:
     def feature_set(self, robot: Robot, *, ranges: Any = None) -> Features:
         """The task's features over `robot`, keep-out features placed by the task's scene."""
         return Features(
-            robot, [f.feature() for f in self.features], scene=self.scene, frame=self.feature_frame, ranges=ranges
+            robot,
+            [f.feature() for f in self.features],
+            scene=self.scene,
+            frame=self.feature_frame,
+            ranges=ranges,
         )
 
     def keep_out_circle(self, feature: str) -> tuple[tuple[float, float], float] | None:
@@ -166,7 +170,8 @@ def _name(r: Reader, key: str, known: tuple[str, ...], what: str) -> str:
     v = r.string(key)
     if v not in known:
         raise ConfigError(
-            f"{r.source}: key '{r.prefix}{key}' must be {what}: {', '.join(known)}, got {v!r}{did_you_mean(v, known)}"
+            f"{r.source}: key '{r.prefix}{key}' must be {what}: {', '.join(known)}, got {v!r}"
+            f"{did_you_mean(v, known)}"
         )
     return v
 
@@ -182,7 +187,9 @@ def _scene(r: Reader) -> Scene:
             raise r.fail(f"scene.{name}", "a table, e.g. [scene.table] with shape, size, position", spec)
         o = Reader(r.source, spec, f"scene.{name}.", SCENE_OBJECT_KEYS)
         shape = _name(o, "shape", tuple(SceneObject.SHAPES), "one of the shapes")
-        kwargs: dict[str, Any] = {"kind": _name(o, "kind", tuple(SceneObject.KINDS), "one of")} if "kind" in spec else {}
+        kwargs: dict[str, Any] = (
+            {"kind": _name(o, "kind", tuple(SceneObject.KINDS), "one of")} if "kind" in spec else {}
+        )
         for key in ("size", "rpy"):
             if key in spec:
                 kwargs[key] = o.vector(key, 3)
@@ -232,8 +239,10 @@ def _feature(r: Reader, name: str, table: Any, scene: Scene) -> FeatureSpec:
         for key in ("keep_out", "radius"):
             f.get(key)  # a keep-out feature needs both: a missing one is named here
         if table["keep_out"] not in scene:
-            raise f.fail("keep_out", f"the name of an object of the task's [scene] ({', '.join(scene.names)})",
-                         table["keep_out"])  # fmt: skip
+            objects = ", ".join(scene.names)
+            raise f.fail(
+                "keep_out", f"the name of an object of the task's [scene] ({objects})", table["keep_out"]
+            )
     params = {key: _PARAMETER_READERS[key](f, key) for key in parameters if key in table}
     return FeatureSpec(name, initial, true, step, lower, upper, learned, params)
 
@@ -259,8 +268,8 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     feature_frame = r.optional_string("feature_frame")
     robot = _robot()
     if feature_frame is not None and feature_frame not in robot.frame_names:
-        raise r.fail("feature_frame", f"a frame of {robot.name}{did_you_mean(feature_frame, robot.frame_names)}",
-                     feature_frame)  # fmt: skip
+        hint = did_you_mean(feature_frame, robot.frame_names)
+        raise r.fail("feature_frame", f"a frame of {robot.name}{hint}", feature_frame)
     task = Task(
         name=r.string("name"),
         title=r.string("title", ""),

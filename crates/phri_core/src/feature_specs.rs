@@ -80,10 +80,9 @@ impl FeatureSpec {
         };
         if !takes {
             let message = match &self.params {
-                FeatureParams::None => format!(
-                    "keep-out feature '{}' needs its parameters keep_out (a scene object's name) and radius [m]",
-                    self.name
-                ),
+                FeatureParams::None => {
+                    format!("is keep-out feature '{}': it needs keep_out (a scene object's name) and radius [m]", self.name)
+                }
                 _ => {
                     let list = if params.is_empty() { "none".to_string() } else { params.join(", ") };
                     format!("gives parameters that feature '{}' does not take (it takes: {list})", self.name)

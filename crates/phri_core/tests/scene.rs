@@ -148,7 +148,7 @@ fn spec_errors_name_the_feature_and_parameter() {
         build(&[plain("table"), keepout("laptop", "lamp", [0.0, 0.0])], Some(&scene)),
         "features[1].keep_out: unknown scene object 'lamp'; known: table, laptop, person"
     );
-    assert!(build(&[plain("laptop")], Some(&scene)).starts_with("features[0] keep-out feature 'laptop' needs"));
+    assert!(build(&[plain("laptop")], Some(&scene)).starts_with("features[0] is keep-out feature 'laptop': it needs"));
     assert!(build(&[plain("tabel")], Some(&scene)).starts_with("features[0]: unknown feature 'tabel'"));
     assert!(build(&[keepout("table", "laptop", [0.0, 0.0])], Some(&scene)).contains("it takes: height"));
     let mut wide = keepout("laptop", "laptop", [0.0, 0.0]);

@@ -71,15 +71,24 @@ fn spec(i: usize, item: &Bound<'_, PyAny>) -> PyResult<FeatureSpec> {
         given.insert(key.clone(), map.get_item(&key)?);
     }
     let number = |key: &str| -> PyResult<Option<f64>> {
-        given.get(key).map(|v| v.extract::<f64>().map_err(|_| PyTypeError::new_err(format!("{arg}.{key} must be a number")))).transpose()
+        given
+            .get(key)
+            .map(|v| v.extract::<f64>().map_err(|_| PyTypeError::new_err(format!("{arg}.{key} must be a number"))))
+            .transpose()
     };
     let params = if takes.contains(&"keep_out") {
         let keep_out: String = match given.get("keep_out") {
             Some(v) => v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}.keep_out must be a scene object's name")))?,
-            None => return Err(error(Kind::InvalidParameter, format!("{arg}.keep_out: feature '{name}' needs the scene object it keeps away from"))),
+            None => {
+                return Err(error(
+                    Kind::InvalidParameter,
+                    format!("{arg}.keep_out: feature '{name}' needs the scene object it keeps away from"),
+                ))
+            }
         };
-        let radius = number("radius")?
-            .ok_or_else(|| error(Kind::InvalidParameter, format!("{arg}.radius: feature '{name}' needs its keep-out radius [m]")))?;
+        let radius = number("radius")?.ok_or_else(|| {
+            error(Kind::InvalidParameter, format!("{arg}.radius: feature '{name}' needs its keep-out radius [m]"))
+        })?;
         let offset = match given.get("offset") {
             Some(v) => {
                 let a: ArrayIn<'_> = v.extract()?;
@@ -135,8 +144,7 @@ impl PyFeatures {
         if features.is_instance_of::<PyString>() {
             return Err(PyTypeError::new_err("features must be a list of feature names or mappings, not a string"));
         }
-        let specs =
-            features.try_iter()?.enumerate().map(|(i, item)| spec(i, &item?)).collect::<PyResult<Vec<_>>>()?;
+        let specs = features.try_iter()?.enumerate().map(|(i, item)| spec(i, &item?)).collect::<PyResult<Vec<_>>>()?;
         let frame = match frame {
             Some(f) => f.to_string(),
             None => robot.frames.feature.clone().ok_or_else(|| {

@@ -102,7 +102,9 @@ impl PyRobot {
         let (base, tip): (String, String) = (d.getattr("base")?.extract()?, d.getattr("tip")?.extract()?);
         let model = RobotModel::from_urdf_str(&text, Some(&base), Some(&tip)).py_err()?;
         let mut frames = RobotFrames::default();
-        for (key, slot) in [("feature_frame", &mut frames.feature), ("hand_frame", &mut frames.hand), ("cup_frame", &mut frames.cup)] {
+        for (key, slot) in
+            [("feature_frame", &mut frames.feature), ("hand_frame", &mut frames.hand), ("cup_frame", &mut frames.cup)]
+        {
             let name: Option<String> = d.getattr(key)?.extract()?;
             if let Some(n) = &name {
                 model.frame_id(n).py_err()?;

@@ -67,7 +67,9 @@ impl PySceneObject {
             }
             "cylinder" => check_parameters(shape, &given, &["radius", "length"])
                 .map(|_| Shape::Cylinder { radius: radius.expect("checked"), length: length.expect("checked") })?,
-            "sphere" => check_parameters(shape, &given, &["radius"]).map(|_| Shape::Sphere { radius: radius.expect("checked") })?,
+            "sphere" => {
+                check_parameters(shape, &given, &["radius"]).map(|_| Shape::Sphere { radius: radius.expect("checked") })?
+            }
             other => {
                 return Err(error(
                     Kind::UnknownName,
@@ -181,7 +183,10 @@ impl PySceneObject {
     }
 
     fn __getnewargs_ex__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyTuple>, Bound<'py, PyDict>)> {
-        let args = PyTuple::new(py, [self.name().into_pyobject(py)?.into_any(), self.shape().into_pyobject(py)?.into_any(), self.position(py).into_any()])?;
+        let args = PyTuple::new(
+            py,
+            [self.name().into_pyobject(py)?.into_any(), self.shape().into_pyobject(py)?.into_any(), self.position(py).into_any()],
+        )?;
         let kwargs = PyDict::new(py);
         kwargs.set_item("size", self.size(py))?;
         kwargs.set_item("radius", self.radius())?;
@@ -201,7 +206,11 @@ impl PySceneObject {
             Shape::Sphere { radius } => format!(", radius={radius}"),
         };
         let p = o.position();
-        let rpy = if self.rpy == [0.0; 3] { String::new() } else { format!(", rpy=[{}, {}, {}]", self.rpy[0], self.rpy[1], self.rpy[2]) };
+        let rpy = if self.rpy == [0.0; 3] {
+            String::new()
+        } else {
+            format!(", rpy=[{}, {}, {}]", self.rpy[0], self.rpy[1], self.rpy[2])
+        };
         format!(
             "SceneObject({:?}, {:?}, [{}, {}, {}]{shape}{rpy}, margin={}, kind={:?})",
             o.name(),

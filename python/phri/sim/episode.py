@@ -207,7 +207,10 @@ class Planner:
         clearance = (
             []
             if self.table_top is None
-            else [(HAND, self.table_top + HAND_CLEARANCE), (self.features.frame, self.table_top + CUP_CLEARANCE)]
+            else [
+                (HAND, self.table_top + HAND_CLEARANCE),
+                (self.features.frame, self.table_top + CUP_CLEARANCE),
+            ]
         )
         # Joint speeds within the arm's limits, with a margin for tracking.
         spacing = task.duration / (task.waypoints - 1)

@@ -171,7 +171,9 @@ class World:
         if top is not None:
             # The robot's stand (not a scene object): from the floor under the table to the base.
             half = [0.08, 0.08, (0.0 - (top - MOUNT_DEPTH)) / 2]
-            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.3, 0.3, 0.3, 1], physicsClientId=c)
+            vis = p.createVisualShape(
+                p.GEOM_BOX, halfExtents=half, rgbaColor=[0.3, 0.3, 0.3, 1], physicsClientId=c
+            )
             self.mount_id = p.createMultiBody(
                 0, -1, vis, basePosition=[0.0, 0.0, (top - MOUNT_DEPTH) / 2], physicsClientId=c
             )
@@ -184,7 +186,7 @@ class World:
         person = obj.kind == "person"
         rgba = PERSON_COLOR if person else COLORS.get(obj.name, OTHER_COLOR)
         # PyBullet spells a cylinder's length "height" for collision shapes, "length" for visual ones.
-        if obj.shape == "box":
+        if obj.shape == "box" and obj.size is not None:
             collision = visual = {"shapeType": p.GEOM_BOX, "halfExtents": [float(h) / 2 for h in obj.size]}
         elif obj.shape == "cylinder":
             collision = {"shapeType": p.GEOM_CYLINDER, "radius": obj.radius, "height": obj.length}

@@ -139,6 +139,7 @@ def read_paths(log: str | Path) -> dict[str, np.ndarray]:
         t, q, desired = data["t"], data["q"], data["desired"]
     robot = Robot.jaco2()
     cup = robot.feature_frame
+    assert cup is not None, "the JACO2's description names its feature frame"
     duration = float(t[-1]) if len(t) > 1 else 1.0
     plan = TimedTrajectory(desired, duration)
     q_desired = plan.sample_many(t)[0]

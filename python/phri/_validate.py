@@ -13,7 +13,23 @@ import numpy as np
 
 from phri.exceptions import ConfigError
 
-__all__ = ["Reader", "did_you_mean", "finite", "unknown_key"]
+__all__ = ["Reader", "did_you_mean", "finite", "is_integer", "must_be", "unknown_key"]
+
+_NOTHING: Any = object()
+
+
+def must_be(
+    what: str, expected: str, got: Any = _NOTHING, *, error: type[Exception] = ConfigError, show: Any = repr
+) -> Exception:
+    """The error "{what} must be {expected}, got {show(got)}" of class `error`: `what` names where
+    the value came from ("file.toml: key 'duration'", "study: seed", "sample_rate")."""
+    got_text = "" if got is _NOTHING else f", got {show(got)}"
+    return error(f"{what} must be {expected}{got_text}")
+
+
+def is_integer(v: Any) -> bool:
+    """An integer (Python or numpy), not a boolean."""
+    return isinstance(v, int | np.integer) and not isinstance(v, bool)
 
 
 def did_you_mean(name: str, known: Sequence[str]) -> str:
@@ -57,9 +73,8 @@ class Reader:
                 if key not in allowed:
                     raise unknown_key(source, prefix.rstrip("."), key, allowed)
 
-    def fail(self, key: str, expected: str, got: Any = None) -> ConfigError:
-        got_text = "" if got is None else f", got {got!r}"
-        return ConfigError(f"{self.source}: key '{self.prefix}{key}' must be {expected}{got_text}")
+    def fail(self, key: str, expected: str, got: Any = _NOTHING) -> Exception:
+        return must_be(f"{self.source}: key '{self.prefix}{key}'", expected, got)
 
     def get(self, key: str, default: Any = ...) -> Any:
         if key in self.table:

@@ -22,7 +22,7 @@ import numpy as np
 
 from phri import exceptions
 from phri._phri import FEATURE_NAMES, FEATURE_PARAMETERS, Features, Robot, Scene, SceneObject
-from phri._validate import Reader, did_you_mean
+from phri._validate import Reader, did_you_mean, is_integer
 from phri.exceptions import ConfigError, UnknownNameError
 
 if sys.version_info >= (3, 11):
@@ -160,7 +160,7 @@ _PARAMETER_READERS: dict[str, Any] = {
 
 def _integer(r: Reader, key: str, minimum: int, default: Any = ...) -> int:
     v = r.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
+    if not is_integer(v) or v < minimum:
         raise r.fail(key, f"an integer >= {minimum}", v)
     return v
 

@@ -11,6 +11,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +25,7 @@ from phri._phri import (
     TrajoptInfo,
     WeightUpdate,
 )
+from phri._validate import must_be
 from phri.config import TABLE, Task
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.participant import Participant, ParticipantParams
@@ -90,25 +92,25 @@ class EpisodeConfig:
     transition_speed: float = 0.8
 
     def __post_init__(self) -> None:
+        def fail(key: str, expected: str, got: Any, show: Any = str) -> Exception:
+            return must_be(key, expected, got, error=InvalidParameterError, show=show)
+
         if self.strategy not in STRATEGIES:
-            raise InvalidParameterError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+            raise fail("strategy", f"one of {STRATEGIES}", self.strategy, repr)
         if not 0 < self.sample_rate <= 1000:
-            raise InvalidParameterError(f"sample_rate must be in (0, 1000] Hz, got {self.sample_rate}")
+            raise fail("sample_rate", "in (0, 1000] Hz", self.sample_rate)
         if not 0 < self.log_rate <= 1000:
-            raise InvalidParameterError(f"log_rate must be in (0, 1000] Hz, got {self.log_rate}")
+            raise fail("log_rate", "in (0, 1000] Hz", self.log_rate)
         # Against the default simulator rate here; run_episode checks against the world's own.
         steps_per_period("sample_rate", self.sample_rate, WorldParams().timestep)
         steps_per_period("log_rate", self.log_rate, WorldParams().timestep)
         if not (math.isfinite(self.sensor_noise) and self.sensor_noise >= 0):
-            raise InvalidParameterError(
-                f"sensor_noise must be a finite value >= 0 N·m, got {self.sensor_noise}"
-            )
+            raise fail("sensor_noise", "a finite value >= 0 N·m", self.sensor_noise)
         if self.rule not in RULES:
-            raise InvalidParameterError(f"rule must be one of {RULES}, got {self.rule!r}")
+            raise fail("rule", f"one of {RULES}", self.rule, repr)
         if not 0 <= self.transition_speed <= 1:
-            raise InvalidParameterError(
-                "transition_speed must be a fraction of the velocity limits in [0, 1], "
-                f"got {self.transition_speed}"
+            raise fail(
+                "transition_speed", "a fraction of the velocity limits in [0, 1]", self.transition_speed
             )
         for key, positive in (("sensor_bias", False), ("thresholds", True), ("detector_bias", False)):
             value = getattr(self, key)

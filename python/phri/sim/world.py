@@ -139,7 +139,7 @@ class World:
         # The arm and its cup as one multibody (a rigid grasp): no constraint for the solver to chase.
         # Self-collision stays off: adjacent primitives overlap at the joints by design.
         with tempfile.TemporaryDirectory() as folder:
-            urdf = Path(folder) / "j2s7s300_with_cup.urdf"
+            urdf = Path(folder) / "arm_with_cup.urdf"
             urdf.write_text(arm_with_cup_urdf(), encoding="utf-8")
             self.robot_id = p.loadURDF(
                 str(urdf), useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c

@@ -80,12 +80,26 @@ class Problem:
     smoothing: float = SMOOTHING
 
 
+def study_features(names: list[str] | tuple[str, ...]) -> list:
+    """Items of phri.Features for `names`, each feature as the shipped tasks define it (the keep-out
+    features as the laptop and human tasks place them in STUDY_SCENE)."""
+    specs = {f.name: f.feature() for t in ("laptop", "human") for f in phri.load_task(t).features}
+    return [specs.get(n, n) for n in names]
+
+
+#: The study's scene (the same in every shipped task).
+STUDY_SCENE = phri.load_task("laptop").scene
+
+
 def study_problem(name: str, waypoints: int | None = None, weights: np.ndarray | None = None) -> Problem:
     """The task's planning problem with its true weights (or `weights`), as phri.sim.Planner sets it up."""
     task = phri.load_task(name)
     robot = phri.Robot.jaco2()
     n = task.waypoints if waypoints is None else waypoints
-    s = task.scene
+    top = task.scene["table"].top
+    (laptop_center, laptop_radius), (human_center, human_radius) = (
+        phri.load_task(t).keep_out_circle(t) for t in ("laptop", "human")
+    )
     spacing = task.duration / (n - 1)
     return Problem(
         name=name,
@@ -94,13 +108,13 @@ def study_problem(name: str, waypoints: int | None = None, weights: np.ndarray |
         start=task.start,
         goal=task.goal,
         waypoints=n,
-        clearance=((HAND, s.table_height + HAND_CLEARANCE), (LINK_7, s.table_height + CUP_CLEARANCE)),
+        clearance=((HAND, top + HAND_CLEARANCE), (LINK_7, top + CUP_CLEARANCE)),
         max_step=VELOCITY_MARGIN * robot.velocity_limits * spacing,
-        laptop_center=s.laptop_center,
-        human_center=s.human_center,
-        laptop_radius=s.laptop_radius,
-        human_radius=s.human_radius,
-        samples=s.samples,
+        laptop_center=laptop_center,
+        human_center=human_center,
+        laptop_radius=laptop_radius,
+        human_radius=human_radius,
+        samples=study_features(["laptop"])[0]["samples"],
         lower=robot.lower_limits,
         upper=robot.upper_limits,
     )
@@ -109,10 +123,7 @@ def study_problem(name: str, waypoints: int | None = None, weights: np.ndarray |
 def phri_optimizer(problem: Problem, **kwargs) -> phri.TrajectoryOptimizer:
     """phri's optimiser for the problem (keyword arguments override the defaults, e.g. coarsening)."""
     robot = phri.Robot.jaco2()
-    features = phri.Features(
-        robot, list(problem.names), laptop_center=problem.laptop_center, human_center=problem.human_center,
-        laptop_radius=problem.laptop_radius, human_radius=problem.human_radius, samples=problem.samples,
-    )  # fmt: skip
+    features = phri.Features(robot, study_features(problem.names), scene=STUDY_SCENE)
     options = {
         "clearance_weight": CLEARANCE_WEIGHT,
         "step_weight": STEP_WEIGHT,

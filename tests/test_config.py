@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import dataclasses
 import importlib.resources
 import math
+import pickle
 import re
 import sys
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import phri
-from phri.config import KNOWN_FEATURES, Scene
+from phri._phri import FEATURE_NAMES
 from phri.exceptions import ConfigError, UnknownNameError
 
 if sys.version_info >= (3, 11):
@@ -116,19 +116,19 @@ def _shipped_text(name: str) -> str:
             "step = 2.0",
             "stpe = 2.0",
             "unknown key 'features.table.stpe' in table [features.table]; "
-            "allowed keys: initial, true, step, lower, upper, learned; did you mean 'step'?",
+            "allowed keys: initial, true, step, lower, upper, learned, height; did you mean 'step'?",
         ),
         (
             "duration = 15.0",
             "duraton = 15.0",
             "unknown key 'duraton' in the top-level table; allowed keys: name, title, angles, start, goal, "
-            "duration, waypoints, task_feature, features, scene; did you mean 'duration'?",
+            "duration, waypoints, task_feature, feature_frame, features, scene; did you mean 'duration'?",
         ),
         (
-            "human_radius = 0.4",
-            "human_raduis = 0.4",
-            "unknown key 'scene.human_raduis' in table [scene]; allowed keys: table_height, laptop_center, "
-            "human_center, laptop_radius, human_radius, samples; did you mean 'human_radius'?",
+            "radius = 0.15",
+            "raduis = 0.15",
+            "unknown key 'scene.person.raduis' in table [scene.person]; allowed keys: shape, size, radius, "
+            "length, position, rpy, margin, kind; did you mean 'radius'?",
         ),
         (
             "[features.table]",
@@ -166,15 +166,15 @@ def test_an_unknown_key_with_no_close_match_lists_the_allowed_keys_only(tmp_path
             "key 'features.table.upper' must be a finite number (leave it out for no upper bound), got inf",
         ),
         ("lower = 0.0", "lower = -inf", "key 'features.table.lower' must be a finite number, got -inf"),
-        ("table_height = -0.1016", "table_height = -inf", "key 'scene.table_height' must be a finite number"),
-        (
-            "laptop_radius = 0.4",
-            "laptop_radius = inf",
-            "key 'scene.laptop_radius' must be a finite number, got inf",
-        ),
+        ("[-0.405, 0.0, -0.1216]", "[-0.405, 0.0, -inf]", "key 'scene.table.position' must be a list of 3"),
+        ("radius = 0.15", "radius = inf", "key 'scene.person.radius' must be a finite number, got inf"),
         ("duration = 15.0", "duration = 1" + "0" * 400, "key 'duration' must be a finite number"),
         ("start = [104.2,", "start = [1" + "0" * 400 + ",", "key 'start' must be a list of 7 finite numbers"),
-        ("[-0.7929, -0.1]", "[-0.7929, inf]", "key 'scene.laptop_center' must be a list of 2 finite numbers"),
+        (
+            "[0.23, 0.3, 0.025]",
+            "[0.23, inf, 0.025]",
+            "key 'scene.laptop.size' must be a list of 3 finite numbers",
+        ),
     ],
 )
 def test_numbers_must_be_finite(tmp_path, old, new, message) -> None:
@@ -313,36 +313,126 @@ def test_windows_and_old_mac_line_endings_still_load(tmp_path, newline) -> None:
 
 
 @pytest.mark.parametrize("name", ["coffee", "human", "laptop", "table"])
-def test_shipped_tasks_spell_out_the_default_scene(name, robot) -> None:
-    written = tomllib.loads(_shipped_text(name))["scene"]
-    defaults = dataclasses.asdict(Scene())
-    assert written == {k: list(v) if isinstance(v, tuple) else v for k, v in defaults.items()}
+def test_shipped_tasks_place_the_study_objects(name) -> None:
     task = phri.load_task(name)
-    assert task.scene == Scene()
-    # The feature values are the original ones: the scene as the planner passes it = phri_core's defaults.
-    s = task.scene
-    names = list(KNOWN_FEATURES)
-    from_task = phri.Features(
-        robot, names, laptop_center=s.laptop_center, human_center=s.human_center,
-        laptop_radius=s.laptop_radius, human_radius=s.human_radius,
-        samples=s.samples,
-    )  # fmt: skip
+    assert task.scene == phri.load_task("laptop").scene  # one scene for the whole study
+    assert task.scene.names == ["table", "laptop", "person"]
+    table, laptop, person = task.scene.objects
+    assert table.top == -0.1016 and table.shape == "box"
+    np.testing.assert_array_equal(laptop.position, [-0.7929, 0.0, -0.0891])
+    assert (person.kind, person.shape, person.radius, person.length) == ("person", "cylinder", 0.15, 1.7)
+    assert task.feature_frame is None  # the robot's: link_7
+
+
+def test_the_keep_out_features_are_the_authors_circles() -> None:
+    # Centres, radii and samples as in the authors' code: laptop (-0.7929, -0.1), human (0, 0.2), 0.4 m.
+    assert phri.load_task("laptop").keep_out_circle("laptop") == ((-0.7929, -0.1), 0.4)
+    assert phri.load_task("human").keep_out_circle("human") == ((0.0, 0.2), 0.4)
+    assert phri.load_task("human").keep_out_circle("laptop") is None
+    for name in ("laptop", "human"):
+        assert phri.load_task(name).features[1].params["samples"] == 4
+
+
+def test_feature_names_come_from_the_core() -> None:
+    assert FEATURE_NAMES == ("efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin")
+    stub = importlib.resources.files("phri").joinpath("_phri.pyi").read_text()
+    literal = re.search(r"_FeatureName = Literal\[(.*?)\]", stub)
+    assert literal is not None
+    assert tuple(n.strip().strip('"') for n in literal.group(1).split(",")) == FEATURE_NAMES
+
+
+def test_tasks_survive_pickling_for_worker_processes() -> None:
+    task = phri.load_task("laptop")
+    copy = pickle.loads(pickle.dumps(task))
+    assert copy.scene == task.scene and copy.features == task.features
+    assert copy.scene["person"].kind == "person"
+
+
+def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
+    text = _shipped_text("human")
+    path = tmp_path / "moved.toml"
+    path.write_text(text.replace("position = [0.0, 0.2, 0.7484]", "position = [0.1, 0.5, 0.7484]")
+                    .replace("radius = 0.4 ", "radius = 0.3 "))  # fmt: skip
+    task = phri.load_task(path)
+    np.testing.assert_array_equal(task.scene["person"].position, [0.1, 0.5, 0.7484])
+    assert task.keep_out_circle("human") == ((0.1, 0.5), 0.3)
     xi = np.linspace(task.start, task.goal, task.waypoints)
-    np.testing.assert_array_equal(from_task.phi(xi), phri.Features(robot, names).phi(xi))
+    assert not np.array_equal(
+        task.feature_set(robot).phi(xi), phri.load_task("human").feature_set(robot).phi(xi)
+    )
 
 
-def test_scene_values_are_read_from_the_file(tmp_path) -> None:
-    path = _variant(tmp_path, "human_radius = 0.4 ", "human_radius = 0.3 ")
-    path.write_text(path.read_text().replace("human_center = [0.0, 0.2]", "human_center = [0.1, 0.5]"))
-    scene = phri.load_task(path).scene
-    assert (scene.human_radius, scene.laptop_radius) == (0.3, 0.4)
-    assert (scene.human_center, scene.laptop_center) == ((0.1, 0.5), (-0.7929, -0.1))
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            'keep_out = "person"',
+            'keep_out = "persn"',
+            "key 'features.human.keep_out' must be the name of an object of the task's [scene] "
+            "(table, laptop, person), got 'persn'",
+        ),
+        (
+            'keep_out = "person"     # the scene object the cup is kept away from\n',
+            "",
+            "missing key 'features.human.keep_out'",
+        ),
+        ("samples = 4 ", "samples = 0 ", "key 'features.human.samples' must be an integer >= 1, got 0"),
+        ("samples = 4 ", "samples = 5000 ", "features[1].samples must be 1 to 1000 points per segment"),
+        ("radius = 0.4 ", "radius = -0.4 ", "key 'features.human.radius' must be a number > 0, got -0.4"),
+        (
+            "radius = 0.4 ",
+            "raduis = 0.4 ",
+            "unknown key 'features.human.raduis' in table [features.human]; allowed keys: initial, true, "
+            "step, "
+            "lower, upper, learned, keep_out, radius, offset, samples; did you mean 'radius'?",
+        ),
+        (
+            'shape = "cylinder"',
+            'shape = "cylindre"',
+            "key 'scene.person.shape' must be one of the shapes: plane, box, cylinder, sphere, "
+            "got 'cylindre'; "
+            "did you mean 'cylinder'?",
+        ),
+        ("length = 1.7\n", "", "key 'scene.person': length: a cylinder needs its length [m]"),
+        ('kind = "person"', 'kind = "human"', "key 'scene.person.kind' must be one of: furniture, person"),
+        (
+            "length = 1.7",
+            "length = 1.7\nmargin = -0.1",
+            "key 'scene.person': margin must be a finite distance >= 0 m, got -0.1",
+        ),
+        (
+            'task_feature = "human"',
+            'task_feature = "human"\nfeature_frame = "link_77"',
+            "key 'feature_frame' must be a frame of j2s7s300",
+        ),
+        ("[scene.laptop]", "[scene.person]", "not valid TOML"),  # a name twice
+    ],
+)
+def test_bad_scene_and_feature_parameters_name_the_file_and_key(tmp_path, old, new, message) -> None:
+    text = _shipped_text("human")
+    assert old in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(old, new, 1))
+    with pytest.raises(ConfigError, match=re.escape(message)) as e:
+        phri.load_task(path)
+    assert str(e.value).startswith(f"{path}: ")
+
+
+def test_a_task_may_name_its_feature_frame(tmp_path, robot) -> None:
+    text = _shipped_text("human").replace(
+        'task_feature = "human"', 'task_feature = "human"\nfeature_frame = "j2s7s300_end_effector"'
+    )
+    path = tmp_path / "frame.toml"
+    path.write_text(text)
+    task = phri.load_task(path)
+    assert task.feature_frame == "j2s7s300_end_effector"
+    assert task.feature_set(robot).frame == "j2s7s300_end_effector"
 
 
 def test_a_scene_that_is_not_a_table_is_an_error(tmp_path) -> None:
     text = _shipped_text("table")
     path = tmp_path / "scene.toml"
     path.write_text("scene = 3\n" + text[: text.index("# Where the objects are")])
-    message = f"{path}: key 'scene' must be a table, e.g. [scene], got 3"
+    message = f"{path}: key 'scene' must be a table of object tables, e.g. [scene.table], got 3"
     with pytest.raises(ConfigError, match=re.escape(message)):
         phri.load_task(path)

@@ -3,7 +3,8 @@ finite differences, normalisation ranges, and typed errors.
 
 The reference uses phri.Robot.frame_pose only for the forward kinematics of each sample point; the
 features themselves (efficiency, table, coffee, laptop/human hinge with 4 sub-samples per segment
-(q_{i-1}, q_i], origin) are computed here in numpy, as the authors' published code defines them.
+(q_{i-1}, q_i], origin) are computed here in numpy, as the authors' published code defines them. The
+keep-out features are placed by SCENE as the study's task files place them.
 """
 
 from __future__ import annotations
@@ -22,6 +23,21 @@ STUDY = ["efficiency", "table", "coffee", "laptop", "human"]
 LAPTOP = (-0.7929, -0.1)
 HUMAN = (0.0, 0.2)
 TOL = 1e-9
+#: Objects at the study's places: the keep-out circles are LAPTOP (0.1 m off the laptop) and HUMAN.
+SCENE = phri.Scene([
+    phri.SceneObject("laptop", "box", [-0.7929, 0.0, -0.0891], size=[0.23, 0.3, 0.025]),
+    phri.SceneObject("person", "cylinder", [0.0, 0.2, 0.7484], radius=0.15, length=1.7, kind="person"),
+])  # fmt: skip
+KEEP_OUT = {
+    "laptop": {"name": "laptop", "keep_out": "laptop", "radius": 0.4, "offset": (0.0, -0.1), "samples": 4},
+    "human": {"name": "human", "keep_out": "person", "radius": 0.4},
+}
+
+
+def features_of(robot: phri.Robot, names: list[str], **kwargs) -> phri.Features:
+    """`names`' features with the keep-out ones placed by SCENE."""
+    return phri.Features(robot, [KEEP_OUT.get(n, n) for n in names], scene=SCENE, **kwargs)
+
 
 POSES = {  # Kinova degrees (the authors' published code)
     "pick_basic": [104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8],
@@ -106,7 +122,7 @@ def assert_close(actual: np.ndarray, expected: np.ndarray, what: str) -> None:
 
 @pytest.mark.parametrize("waypoints", [2, 3, 7, 31])
 def test_phi_matches_numpy_reference_on_random_trajectories(jaco2, gen, waypoints):
-    features = phri.Features(jaco2, ALL)
+    features = features_of(jaco2, ALL)
     for _ in range(5):
         xi = random_trajectory(jaco2, gen, waypoints)
         expected = reference_per_segment(jaco2, xi, ALL)
@@ -119,7 +135,7 @@ def test_phi_matches_numpy_reference_on_random_trajectories(jaco2, gen, waypoint
     [("pick_basic", "place_higher", "laptop"), ("pick_shelf", "place_higher", "human")],
 )
 def test_study_lines_enter_the_keepout_circles(jaco2, start, goal, feature):
-    features = phri.Features(jaco2, ALL)
+    features = features_of(jaco2, ALL)
     xi = line(pose(start), pose(goal))
     phi = features.phi(xi)
     expected = reference_per_segment(jaco2, xi, ALL)
@@ -141,23 +157,50 @@ def test_scene_parameters_reach_the_features(jaco2, gen):
         table_height=-0.1016, laptop=(-0.6, 0.2), human=(-0.3, -0.4), laptop_radius=0.55, human_radius=0.3,
         samples=7,
     )  # fmt: skip
+    moved = phri.Scene([
+        phri.SceneObject("laptop", "sphere", [-0.5, 0.25, 0.0], radius=0.1),
+        phri.SceneObject("person", "cylinder", [-0.3, -0.4, 0.5], radius=0.15, length=1.7, kind="person"),
+    ])  # fmt: skip
     features = phri.Features(
         jaco2,
-        ALL,
-        table_height=scene["table_height"],
-        laptop_center=scene["laptop"],
-        human_center=scene["human"],
-        laptop_radius=scene["laptop_radius"],
-        human_radius=scene["human_radius"],
-        samples=scene["samples"],
+        [
+            "efficiency",
+            {"name": "table", "height": -0.1016},
+            "coffee",
+            "coffee_dot",
+            {"name": "laptop", "keep_out": "laptop", "radius": 0.55, "offset": [-0.1, -0.05], "samples": 7},
+            {"name": "human", "keep_out": "person", "radius": 0.3, "samples": 7},
+            {"name": "origin"},
+        ],
+        scene=moved,
     )
     for xi in [line(pose("pick_basic"), pose("place_higher"), 12), random_trajectory(jaco2, gen, 9)]:
         expected = reference_per_segment(jaco2, xi, ALL, **scene)
         assert_close(features.per_segment(xi), expected, "custom scene")
 
 
+def test_the_default_frame_is_the_robots_feature_frame(jaco2):
+    assert jaco2.feature_frame == LINK_7
+    assert jaco2.with_payload(jaco2.cup_frame, 0.3).feature_frame == LINK_7
+    assert features_of(jaco2, STUDY).frame == LINK_7
+    xi = line(pose("pick_basic"), pose("place_lower"), 5)
+    hand = phri.Features(jaco2, ["table"], frame=jaco2.hand_frame)
+    np.testing.assert_allclose(hand.phi(xi), jaco2.frame_pose(jaco2.hand_frame, xi[1:])[:, 2, 3].sum())
+    bare = phri.Robot.from_urdf_string(jaco2_urdf(), base="root", tip="j2s7s300_end_effector")
+    assert bare.feature_frame is None
+    with pytest.raises(ex.InvalidParameterError, match="^frame: robot 'j2s7s300' declares no feature frame"):
+        phri.Features(bare, ["table"])
+    assert phri.Features(bare, ["table"], frame=LINK_7).frame == LINK_7
+
+
+def jaco2_urdf() -> str:
+    import importlib.resources
+
+    return importlib.resources.files("phri").joinpath("robots/jaco2/j2s7s300.urdf").read_text()
+
+
 def test_names_index_and_input_forms(jaco2):
-    features = phri.Features(jaco2, STUDY)
+    features = features_of(jaco2, STUDY)
     assert features.names == STUDY
     assert len(features) == 5
     assert [features.index(n) for n in STUDY] == list(range(5))
@@ -202,7 +245,7 @@ def finite_difference_jacobian(features: phri.Features, xi: np.ndarray, h: float
     ["random", "pick_basic→place_higher", "pick_shelf→place_higher"],
 )
 def test_gradient_matches_finite_differences(jaco2, gen, trajectory):
-    features = phri.Features(jaco2, ALL)
+    features = features_of(jaco2, ALL)
     if trajectory == "random":
         xi = random_trajectory(jaco2, gen, 6)
     else:
@@ -224,7 +267,7 @@ def test_gradient_matches_finite_differences(jaco2, gen, trajectory):
 
 
 def test_weighted_cost_is_the_weighted_sum(jaco2, gen):
-    features = phri.Features(jaco2, ALL)
+    features = features_of(jaco2, ALL)
     xi = line(pose("pick_basic"), pose("place_higher"), 9, wiggle=0.2)
     weights = gen.uniform(-2.0, 5.0, len(ALL))
     weights[2] = 0.0  # a zero weight is skipped, not an error
@@ -235,9 +278,9 @@ def test_weighted_cost_is_the_weighted_sum(jaco2, gen):
 
 
 def test_normalisation_ranges_divide_values_and_gradients(jaco2):
-    raw = phri.Features(jaco2, STUDY)
+    raw = features_of(jaco2, STUDY)
     ranges = np.array([1.0, 0.6919, 1.8761, 1.0048, 2.5])
-    normalised = phri.Features(jaco2, STUDY, ranges=ranges)
+    normalised = features_of(jaco2, STUDY, ranges=ranges)
     np.testing.assert_array_equal(raw.ranges, np.ones(5))
     np.testing.assert_allclose(normalised.ranges, ranges, rtol=1e-15)
     xi = line(pose("pick_basic"), pose("place_higher"), 10, wiggle=0.2)
@@ -267,32 +310,56 @@ def test_unknown_and_repeated_names_are_typed_errors(jaco2):
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "arg"),
+    ("laptop", "arg"),
     [
-        ({"laptop_radius": -0.4}, "laptop_radius"),
-        ({"human_radius": float("nan")}, "human_radius"),
-        ({"samples": 0}, "samples"),
-        ({"samples": -3}, "samples"),
-        ({"samples": 10**6}, "samples"),
-        ({"ranges": [1.0, 1e-320]}, "ranges"),
-        ({"ranges": [1.0, 0.0]}, "ranges"),
-        ({"ranges": [1.0, -2.0]}, "ranges"),
+        ({"radius": -0.4}, "features[1].radius"),
+        ({"radius": float("nan")}, "features[1].radius"),
+        ({"samples": 0}, "features[1].samples"),
+        ({"samples": -3}, "features[1].samples"),
+        ({"samples": 10**6}, "features[1].samples"),
+        ({"keep_out": "lamp"}, "features[1].keep_out"),
+        ({"radious": 0.4}, "features[1].radious"),
     ],
 )
-def test_bad_parameters_raise_invalid_parameter(jaco2, kwargs, arg):
-    with pytest.raises(ex.InvalidParameterError, match=rf"^{arg}\b"):
-        phri.Features(jaco2, ["table", "laptop"], **kwargs)
+def test_bad_feature_parameters_name_the_feature_and_parameter(jaco2, laptop, arg):
+    spec = {**KEEP_OUT["laptop"], **laptop}
+    error = ex.UnknownNameError if "keep_out" in laptop else ex.InvalidParameterError
+    with pytest.raises(error, match=rf"^{re.escape(arg)}\b"):
+        phri.Features(jaco2, ["table", spec], scene=SCENE)
+
+
+@pytest.mark.parametrize("ranges", [[1.0, 1e-320], [1.0, 0.0], [1.0, -2.0]])
+def test_bad_ranges_raise_invalid_parameter(jaco2, ranges):
+    with pytest.raises(ex.InvalidParameterError, match=r"^ranges\b"):
+        features_of(jaco2, ["table", "laptop"], ranges=ranges)
+
+
+def test_keep_out_features_need_a_scene_and_their_parameters(jaco2):
+    with pytest.raises(ex.InvalidParameterError, match=r"^scene is needed by keep-out feature 'laptop'"):
+        phri.Features(jaco2, ["table", KEEP_OUT["laptop"]])
+    with pytest.raises(
+        ex.InvalidParameterError, match=r"^features\[0\] is keep-out feature 'human': it needs keep_out"
+    ):
+        phri.Features(jaco2, ["human"], scene=SCENE)
+    with pytest.raises(ex.InvalidParameterError, match=r"^features\[0\].radius: feature 'human' needs"):
+        phri.Features(jaco2, [{"name": "human", "keep_out": "person"}], scene=SCENE)
+    with pytest.raises(ex.InvalidParameterError, match=r"^features\[0\].height: feature 'coffee' takes no"):
+        phri.Features(jaco2, [{"name": "coffee", "height": 0.0}])
+    with pytest.raises(ex.InvalidParameterError, match=r"^features\[0\] needs a \"name\""):
+        phri.Features(jaco2, [{"radius": 0.4}])
+    with pytest.raises(TypeError, match=r"features\[0\] must be a feature name or a mapping"):
+        phri.Features(jaco2, [3])
 
 
 def test_bad_scene_values_and_range_shapes(jaco2):
-    with pytest.raises(ex.NonFiniteError, match="^laptop_center"):
-        phri.Features(jaco2, ["laptop"], laptop_center=(float("nan"), 0.0))
-    with pytest.raises(ex.NonFiniteError, match="^table_height"):
-        phri.Features(jaco2, ["table"], table_height=float("inf"))
+    with pytest.raises(ex.NonFiniteError, match=r"^features\[0\].offset"):
+        phri.Features(jaco2, [{**KEEP_OUT["laptop"], "offset": (float("nan"), 0.0)}], scene=SCENE)
+    with pytest.raises(ex.NonFiniteError, match=r"^features\[0\].height"):
+        phri.Features(jaco2, [{"name": "table", "height": float("inf")}])
     with pytest.raises(ex.ShapeError, match=re.escape("ranges must have shape (2,), got (3,)")):
-        phri.Features(jaco2, ["table", "laptop"], ranges=[1.0, 1.0, 1.0])
+        features_of(jaco2, ["table", "laptop"], ranges=[1.0, 1.0, 1.0])
     with pytest.raises(ex.NonFiniteError, match="^ranges"):
-        phri.Features(jaco2, ["table", "laptop"], ranges=[1.0, float("nan")])
+        features_of(jaco2, ["table", "laptop"], ranges=[1.0, float("nan")])
 
 
 @pytest.mark.parametrize(
@@ -306,7 +373,7 @@ def test_bad_scene_values_and_range_shapes(jaco2):
     ],
 )
 def test_bad_trajectories_are_typed_errors(jaco2, xi, error, message):
-    features = phri.Features(jaco2, STUDY)
+    features = features_of(jaco2, STUDY)
     for method in [features.phi, features.phi_gradient, features.per_segment]:
         with pytest.raises(error, match=re.escape(message)):
             method(xi)
@@ -315,7 +382,7 @@ def test_bad_trajectories_are_typed_errors(jaco2, xi, error, message):
 
 
 def test_bad_weights_are_typed_errors(jaco2):
-    features = phri.Features(jaco2, STUDY)
+    features = features_of(jaco2, STUDY)
     xi = line(pose("pick_basic"), pose("place_lower"), 4)
     with pytest.raises(ex.ShapeError, match=re.escape("weights must have shape (5,), got (4,)")):
         features.weighted_cost(xi, np.ones(4))

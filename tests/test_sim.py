@@ -223,7 +223,8 @@ def test_bad_task_input_is_a_clear_error(world, tmp_path) -> None:
     with pytest.raises(PlanningError, match=r"moves joint 0 by .* make the task last about \d+ s"):
         Planner(phri.Task(**{**task.__dict__, "goal": far}), world)
     # A table top the hand cannot stay above.
-    high = phri.Task(**{**task.__dict__, "scene": phri.config.Scene(table_height=0.4)})
+    table = phri.SceneObject("table", "box", [-0.405, 0.0, 0.38], size=[0.81, 1.62, 0.04])
+    high = phri.Task(**{**task.__dict__, "scene": phri.Scene([table])})
     with pytest.raises(PlanningError, match=r"cannot keep the hand .* above the table top \(z = 0.4 m\)"):
         Planner(high, world)
     with pytest.raises(InvalidParameterError, match="strategy"):
@@ -234,17 +235,34 @@ def test_bad_task_input_is_a_clear_error(world, tmp_path) -> None:
 
 def test_an_episode_places_the_objects_where_its_task_file_says(world) -> None:
     task = phri.load_task("laptop")
-    moved = phri.config.Scene(laptop_center=(-0.6, 0.2), human_center=(0.1, 0.4))
+    table, laptop, person = task.scene.objects
+    laptop = phri.SceneObject("laptop", "box", [-0.6, 0.3, -0.0891], size=laptop.size)
+    person = phri.SceneObject(
+        "person", "cylinder", [0.1, 0.4, 0.7484], radius=0.15, length=1.7, kind="person"
+    )
+    moved = phri.Scene([table, laptop, person])
     short = phri.Task(**{**shortened(task, 1.0, 5).__dict__, "scene": moved})
     run_episode(short, world, NOBODY, EpisodeConfig(strategy="impedance"))
     p, c = world.p, world.client
-    laptop, _ = p.getBasePositionAndOrientation(world.laptop_id, physicsClientId=c)
-    human, _ = p.getBasePositionAndOrientation(world.human_id, physicsClientId=c)
-    np.testing.assert_allclose(laptop[:2], (-0.6, 0.3))  # the box's centre is 0.1 m from the feature's
-    np.testing.assert_allclose(human[:2], (0.1, 0.4))
+    at = {
+        name: p.getBasePositionAndOrientation(body, physicsClientId=c)[0]
+        for name, body in world.bodies.items()
+    }
+    np.testing.assert_allclose(at["laptop"], (-0.6, 0.3, -0.0891))
+    np.testing.assert_allclose(at["person"], (0.1, 0.4, 0.7484))
+    np.testing.assert_allclose(at["table"], (-0.405, 0.0, -0.1216))
+    assert world.mount_id is not None
     run_episode(shortened(task, 1.0, 5), world, NOBODY, EpisodeConfig(strategy="impedance"))
-    laptop, _ = p.getBasePositionAndOrientation(world.laptop_id, physicsClientId=c)
-    np.testing.assert_allclose(laptop[:2], (-0.7929, 0.0))
+    laptop_at, _ = p.getBasePositionAndOrientation(world.bodies["laptop"], physicsClientId=c)
+    np.testing.assert_allclose(laptop_at[:2], (-0.7929, 0.0))
+
+
+def test_a_task_without_a_table_plans_without_the_clearance(world) -> None:
+    task = phri.load_task("coffee")
+    free = phri.Task(**{**task.__dict__, "scene": phri.Scene()})
+    planner = Planner(free, world)
+    assert planner.table_top is None
+    assert planner.optimizer is not None
 
 
 @pytest.mark.parametrize(

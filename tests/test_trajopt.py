@@ -84,7 +84,7 @@ def test_the_reference_objective_is_the_one_phri_minimises(name, solved) -> None
 
 def test_without_smoothing_and_penalties_the_objective_is_features_weighted_cost(robot) -> None:
     names = ["efficiency", "table", "coffee", "laptop", "human"]
-    features = phri.Features(robot, names)
+    features = phri.Features(robot, peers.study_features(names), scene=peers.STUDY_SCENE)
     opt = phri.TrajectoryOptimizer(features, 31, smoothing=0.0)
     problem = peers.study_problem("laptop")
     rng = np.random.default_rng(9)
@@ -120,7 +120,7 @@ def test_plans_do_the_task_and_keep_start_goal_limits_and_clearance(name, solved
 
 
 def opt_features(problem) -> phri.Features:
-    return phri.Features(phri.Robot.jaco2(), list(problem.names))
+    return phri.Features(phri.Robot.jaco2(), peers.study_features(problem.names), scene=peers.STUDY_SCENE)
 
 
 @pytest.mark.slow
@@ -289,7 +289,9 @@ def test_warm_starts_through_the_coarse_levels() -> None:
 
 
 def test_rescale_weights_keeps_the_trade_off_on_another_grid(robot) -> None:
-    features = phri.Features(robot, ["efficiency", "table", "laptop"])
+    features = phri.Features(
+        robot, peers.study_features(["efficiency", "table", "laptop"]), scene=peers.STUDY_SCENE
+    )
     w = np.array([1.0, 2.0, 10.0])
     # Efficiency (a sum of squared steps, e = −1) keeps its weight; per-waypoint features (e = 1)
     # scale with the square of the segment-length ratio.
@@ -319,7 +321,7 @@ def _at(plan: np.ndarray, times: np.ndarray) -> np.ndarray:
 def test_rescaled_weights_plan_the_same_path_on_100_waypoints(name, solved, robot) -> None:
     problem, _, plan31, *_ = solved[name]
     fine = peers.study_problem(name, waypoints=100)
-    features = phri.Features(robot, list(problem.names))
+    features = phri.Features(robot, peers.study_features(problem.names), scene=peers.STUDY_SCENE)
     weights = features.rescale_weights(problem.weights, problem.waypoints, fine.waypoints)
     # The clearance penalty, a sum over waypoints too, scaled as the per-waypoint features.
     r2 = ((problem.waypoints - 1) / (fine.waypoints - 1)) ** 2

@@ -1,12 +1,14 @@
 # Type stubs of the native module (checked against it by `make lint`: mypy.stubtest).
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from os import PathLike
-from typing import ClassVar, Literal, final
+from typing import Any, ClassVar, Literal, final
 
 import numpy as np
 import numpy.typing as npt
 
 __all__ = [
+    "FEATURE_NAMES",
+    "FEATURE_PARAMETERS",
     "Deformation",
     "Features",
     "ImpedanceController",
@@ -15,6 +17,8 @@ __all__ = [
     "LearnerHistory",
     "PlanLevels",
     "Robot",
+    "Scene",
+    "SceneObject",
     "TimedTrajectory",
     "TrajectoryOptimizer",
     "TrajoptInfo",
@@ -26,6 +30,12 @@ __all__ = [
 ]
 
 __version__: str
+
+_FeatureName = Literal["efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin"]
+#: The built-in features' names (defined in phri_core).
+FEATURE_NAMES: tuple[_FeatureName, ...]
+#: Per built-in feature, the names of its parameters.
+FEATURE_PARAMETERS: dict[str, tuple[str, ...]]
 
 _Array = npt.ArrayLike
 _F64 = npt.NDArray[np.float64]
@@ -44,7 +54,15 @@ class Robot:
     @staticmethod
     def from_urdf_string(urdf: str, base: str | None = None, tip: str | None = None) -> Robot: ...
     @staticmethod
+    def from_description(name_or_path: str | PathLike[str]) -> Robot: ...
+    @staticmethod
     def jaco2() -> Robot: ...
+    @property
+    def feature_frame(self) -> str | None: ...
+    @property
+    def hand_frame(self) -> str | None: ...
+    @property
+    def cup_frame(self) -> str | None: ...
     def with_payload(
         self, frame: str, mass: float, com: _Array | None = None, inertia: _Array | None = None
     ) -> Robot: ...
@@ -73,23 +91,83 @@ class Robot:
     def mass_matrix(self, q: _Array) -> _F64: ...
 
 @final
+class SceneObject:
+    """A named object (plane, box, cylinder, sphere) in the robot's base frame [m, rad]."""
+
+    SHAPES: ClassVar[list[str]]
+    KINDS: ClassVar[list[str]]
+    DEFAULT_MARGIN: ClassVar[float]
+    def __new__(
+        cls,
+        name: str,
+        shape: str,
+        position: _Array,
+        *,
+        size: _Array | None = None,
+        radius: float | None = None,
+        length: float | None = None,
+        rpy: _Array | None = None,
+        margin: float | None = None,
+        kind: str = "furniture",
+    ) -> SceneObject: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def shape(self) -> str: ...
+    @property
+    def size(self) -> _F64 | None: ...
+    @property
+    def radius(self) -> float | None: ...
+    @property
+    def length(self) -> float | None: ...
+    @property
+    def position(self) -> _F64: ...
+    @property
+    def rpy(self) -> _F64: ...
+    @property
+    def pose(self) -> _F64: ...
+    @property
+    def margin(self) -> float: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def top(self) -> float | None: ...
+    def __getnewargs_ex__(self) -> tuple[tuple[Any, ...], dict[str, Any]]: ...
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+
+@final
+class Scene:
+    """Named objects in the robot's base frame (names unique), e.g. a task's [scene]."""
+
+    def __new__(cls, objects: Sequence[SceneObject] = ...) -> Scene: ...
+    @property
+    def objects(self) -> list[SceneObject]: ...
+    @property
+    def names(self) -> list[str]: ...
+    def __getitem__(self, key: str, /) -> SceneObject: ...
+    def get(self, name: str) -> SceneObject | None: ...
+    def __contains__(self, key: str, /) -> bool: ...
+    def __len__(self) -> int: ...
+    def __getnewargs__(self) -> tuple[list[SceneObject]]: ...
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+
+@final
 class Features:
     """Task features Φ(ξ) of an (N, n) trajectory, summed over segments (q_{i-1}, q_i], i = 1..N-1."""
 
     def __new__(
         cls,
         robot: Robot,
-        names: Sequence[str],
-        frame: str = "j2s7s300_link_7",
+        features: Sequence[str | Mapping[str, Any]],
         *,
-        table_height: float = 0.0,
-        laptop_center: tuple[float, float] = (-0.7929, -0.1),
-        human_center: tuple[float, float] = (0.0, 0.2),
-        laptop_radius: float = 0.4,
-        human_radius: float = 0.4,
-        samples: int = 4,
+        scene: Scene | None = None,
+        frame: str | None = None,
         ranges: _Array | None = None,
     ) -> Features: ...
+    @property
+    def frame(self) -> str: ...
     @property
     def names(self) -> list[str]: ...
     @property

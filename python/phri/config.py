@@ -1,14 +1,15 @@
 """Task files: validated, frozen configuration loaded from TOML.
 
-A task names its start and goal poses, its duration, and per feature the initial weight, the true
-(demonstrated) weight, the learning step and the bounds. The study's four tasks ship with phri
-(``phri.load_task("table")``); a user passes their own file the same way (``load_task("my.toml")``).
-Errors name the file, the key and the expected value.
+A task names its start and goal poses, its duration, per feature the initial weight, the true
+(demonstrated) weight, the learning step, the bounds and the feature's own parameters (a keep-out
+feature names the scene object it keeps away from), and its scene: one ``[scene.<name>]`` table per
+object, in the robot's base frame. The study's four tasks ship with phri (``phri.load_task("table")``);
+a user passes their own file the same way (``load_task("my.toml")``). Errors name the file, the key
+and the expected value.
 """
 
 from __future__ import annotations
 
-import difflib
 import functools
 import math
 import sys
@@ -19,7 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from phri._phri import Robot
+from phri import exceptions
+from phri._phri import FEATURE_NAMES, FEATURE_PARAMETERS, Features, Robot, Scene, SceneObject
+from phri._validate import Reader, did_you_mean, is_integer
 from phri.exceptions import ConfigError, UnknownNameError
 
 if sys.version_info >= (3, 11):
@@ -27,15 +30,18 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["FeatureSpec", "Scene", "Task", "load_task", "task_names"]
+__all__ = ["FeatureSpec", "Task", "load_task", "task_names"]
 
 STUDY_TASKS = ("human", "coffee", "table", "laptop")
-KNOWN_FEATURES = ("efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin")
 TASK_KEYS = (
-    "name", "title", "angles", "start", "goal", "duration", "waypoints", "task_feature", "features", "scene",
+    "name", "title", "angles", "start", "goal", "duration", "waypoints", "task_feature", "feature_frame",
+    "features", "scene",
 )  # fmt: skip
-FEATURE_KEYS = ("initial", "true", "step", "lower", "upper", "learned")
-SCENE_KEYS = ("table_height", "laptop_center", "human_center", "laptop_radius", "human_radius", "samples")
+#: Keys of a [features.<name>] table besides the feature's own parameters (FEATURE_PARAMETERS).
+WEIGHT_KEYS = ("initial", "true", "step", "lower", "upper", "learned")
+SCENE_OBJECT_KEYS = ("shape", "size", "radius", "length", "position", "rpy", "margin", "kind")
+#: The planner keeps the hand and the cup above the top of the scene object of this name.
+TABLE = "table"
 
 
 @dataclass(frozen=True)
@@ -49,18 +55,13 @@ class FeatureSpec:
     lower: float = 0.0
     upper: float = math.inf
     learned: bool = True
+    #: The feature's own parameters (FEATURE_PARAMETERS[name]), e.g. a keep-out feature's
+    #: keep_out, radius [m], offset [m] and samples.
+    params: dict[str, Any] = field(default_factory=dict)
 
-
-@dataclass(frozen=True)
-class Scene:
-    """Where the objects are, in the robot base frame [m] (original_system.md)."""
-
-    table_height: float = -0.1016
-    laptop_center: tuple[float, float] = (-0.7929, -0.1)
-    human_center: tuple[float, float] = (0.0, 0.2)
-    laptop_radius: float = 0.4
-    human_radius: float = 0.4
-    samples: int = 4
+    def feature(self) -> str | dict[str, Any]:
+        """The item of ``phri.Features(robot, features)`` for this feature."""
+        return {"name": self.name, **self.params} if self.params else self.name
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,8 @@ class Task:
     features: tuple[FeatureSpec, ...]
     scene: Scene = field(default_factory=Scene)
     source: str = "<memory>"
+    #: The frame the features read (None: the robot's feature frame).
+    feature_frame: str | None = None
 
     @property
     def feature_names(self) -> list[str]:
@@ -90,90 +93,31 @@ class Task:
     def task_index(self) -> int:
         return self.feature_names.index(self.task_feature)
 
+    def feature_set(self, robot: Robot, *, ranges: Any = None) -> Features:
+        """The task's features over `robot`, keep-out features placed by the task's scene."""
+        return Features(
+            robot,
+            [f.feature() for f in self.features],
+            scene=self.scene,
+            frame=self.feature_frame,
+            ranges=ranges,
+        )
+
+    def keep_out_circle(self, feature: str) -> tuple[tuple[float, float], float] | None:
+        """Centre (x, y) [m] and radius [m] of keep-out feature `feature`'s circle (None if the task
+        has no such keep-out feature)."""
+        spec = next((f for f in self.features if f.name == feature and "keep_out" in f.params), None)
+        if spec is None:
+            return None
+        xy = self.scene[spec.params["keep_out"]].position[:2]
+        dx, dy = spec.params.get("offset", (0.0, 0.0))
+        return (float(xy[0] + dx), float(xy[1] + dy)), float(spec.params["radius"])
+
 
 def task_names() -> list[str]:
     """Names of the tasks shipped with phri."""
     folder = resources.files("phri").joinpath("tasks")
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
-
-
-def _finite(x: Any) -> bool:
-    """A TOML number (not a boolean) that is finite as a float (huge integers are not)."""
-    if isinstance(x, bool) or not isinstance(x, int | float):
-        return False
-    try:
-        return math.isfinite(x)
-    except OverflowError:
-        return False
-
-
-def _unknown_key(source: str, path: str, key: str, allowed: tuple[str, ...]) -> ConfigError:
-    """An error for `key` in the table at `path` ("" for the top level): the allowed keys, a near match."""
-    table = f"table [{path}]" if path else "the top-level table"
-    full = f"{path}.{key}" if path else key
-    close = difflib.get_close_matches(key, allowed, n=1)
-    hint = f"; did you mean '{close[0]}'?" if close else ""
-    return ConfigError(f"{source}: unknown key '{full}' in {table}; allowed keys: {', '.join(allowed)}{hint}")
-
-
-class _Reader:
-    """Typed access to a TOML table with errors that name the file and key.
-
-    With `allowed`, a key the table does not know is an error (a typo must not fall back to a default).
-    """
-
-    def __init__(
-        self, source: str, table: dict[str, Any], prefix: str = "", allowed: tuple[str, ...] | None = None
-    ) -> None:
-        self.source, self.table, self.prefix = source, table, prefix
-        if allowed is not None:
-            for key in table:
-                if key not in allowed:
-                    raise _unknown_key(source, prefix.rstrip("."), key, allowed)
-
-    def fail(self, key: str, expected: str, got: Any = None) -> ConfigError:
-        got_text = "" if got is None else f", got {got!r}"
-        return ConfigError(f"{self.source}: key '{self.prefix}{key}' must be {expected}{got_text}")
-
-    def get(self, key: str, default: Any = ...) -> Any:
-        if key in self.table:
-            return self.table[key]
-        if default is ...:
-            raise ConfigError(f"{self.source}: missing key '{self.prefix}{key}'")
-        return default
-
-    def number(
-        self, key: str, default: Any = ..., positive: bool = False, expected: str = "a finite number"
-    ) -> float:
-        """A finite number from the file; a default that is not in the file may be infinite."""
-        if key not in self.table and default is not ...:
-            return float(default)
-        v = self.get(key)
-        if not _finite(v):
-            raise self.fail(key, expected, v)
-        if positive and not v > 0:
-            raise self.fail(key, "a number > 0", v)
-        return float(v)
-
-    def string(self, key: str, default: Any = ...) -> str:
-        v = self.get(key, default)
-        if not isinstance(v, str):
-            raise self.fail(key, "a string", v)
-        return v
-
-    def vector(self, key: str, length: int, default: Any = ...) -> np.ndarray:
-        v = self.get(key, default)
-        ok = isinstance(v, list | tuple) and len(v) == length and all(_finite(x) for x in v)
-        if not ok:
-            raise self.fail(key, f"a list of {length} finite numbers", v)
-        return np.asarray(v, dtype=float)
-
-    def table_of(self, key: str, allowed: tuple[str, ...]) -> _Reader:
-        """The sub-table `key` (empty if absent), its keys checked against `allowed`."""
-        v = self.get(key, {})
-        if not isinstance(v, dict):
-            raise self.fail(key, f"a table, e.g. [{self.prefix}{key}]", v)
-        return _Reader(self.source, v, f"{self.prefix}{key}.", allowed)
 
 
 @functools.cache
@@ -186,7 +130,7 @@ def _format_angle(value: float) -> str:
     return f"{value:.6f}".rstrip("0").rstrip(".")
 
 
-def _check_limits(r: _Reader, key: str, q: np.ndarray, scale: float, unit: str) -> None:
+def _check_limits(r: Reader, key: str, q: np.ndarray, scale: float, unit: str) -> None:
     """`q` [rad] within the robot's joint limits, as Planner checks it; the error is in the file's unit."""
     robot = _robot()
     lower, upper = robot.lower_limits, robot.upper_limits
@@ -204,8 +148,107 @@ def _check_limits(r: _Reader, key: str, q: np.ndarray, scale: float, unit: str) 
         )
 
 
+#: How each feature parameter is read from a task file (which feature takes which: FEATURE_PARAMETERS).
+_PARAMETER_READERS: dict[str, Any] = {
+    "keep_out": lambda f, key: f.string(key),
+    "radius": lambda f, key: f.number(key, positive=True),
+    "offset": lambda f, key: tuple(float(x) for x in f.vector(key, 2)),
+    "samples": lambda f, key: _integer(f, key, 1),
+    "height": lambda f, key: f.number(key),
+}
+
+
+def _integer(r: Reader, key: str, minimum: int, default: Any = ...) -> int:
+    v = r.get(key, default)
+    if not is_integer(v) or v < minimum:
+        raise r.fail(key, f"an integer >= {minimum}", v)
+    return v
+
+
+def _name(r: Reader, key: str, known: tuple[str, ...], what: str) -> str:
+    """A string from `known` (e.g. a shape), with a near match when misspelt."""
+    v = r.string(key)
+    if v not in known:
+        raise ConfigError(
+            f"{r.source}: key '{r.prefix}{key}' must be {what}: {', '.join(known)}, got {v!r}"
+            f"{did_you_mean(v, known)}"
+        )
+    return v
+
+
+def _scene(r: Reader) -> Scene:
+    """The [scene.<name>] tables, each one object in the robot's base frame."""
+    table = r.get("scene", {})
+    if not isinstance(table, dict):
+        raise r.fail("scene", "a table of object tables, e.g. [scene.table]", table)
+    objects = []
+    for name, spec in table.items():
+        if not isinstance(spec, dict):
+            raise r.fail(f"scene.{name}", "a table, e.g. [scene.table] with shape, size, position", spec)
+        o = Reader(r.source, spec, f"scene.{name}.", SCENE_OBJECT_KEYS)
+        shape = _name(o, "shape", tuple(SceneObject.SHAPES), "one of the shapes")
+        kwargs: dict[str, Any] = (
+            {"kind": _name(o, "kind", tuple(SceneObject.KINDS), "one of")} if "kind" in spec else {}
+        )
+        for key in ("size", "rpy"):
+            if key in spec:
+                kwargs[key] = o.vector(key, 3)
+        for key in ("radius", "length"):
+            if key in spec:
+                kwargs[key] = o.number(key, positive=True)
+        if "margin" in spec:
+            kwargs["margin"] = o.number("margin")
+        try:
+            objects.append(SceneObject(name, shape, o.vector("position", 3), **kwargs))
+        except exceptions.PhriError as e:  # what a shape needs, and value ranges: the core's checks
+            raise ConfigError(f"{r.source}: key 'scene.{name}': {e}") from None
+    return Scene(objects)
+
+
+def _feature(r: Reader, name: str, table: Any, scene: Scene) -> FeatureSpec:
+    """One [features.<name>] table: the weights and the feature's own parameters."""
+    if name not in FEATURE_NAMES:
+        raise ConfigError(
+            f"{r.source}: key 'features.{name}': unknown feature; known: {', '.join(FEATURE_NAMES)}"
+            f"{did_you_mean(name, FEATURE_NAMES)}"
+        )
+    if not isinstance(table, dict):
+        raise r.fail(f"features.{name}", "a table", table)
+    parameters = FEATURE_PARAMETERS[name]
+    f = Reader(r.source, table, f"features.{name}.", WEIGHT_KEYS + parameters)
+    learned = f.get("learned", True)
+    if not isinstance(learned, bool):
+        raise f.fail("learned", "true or false", learned)
+    initial, true = f.number("initial"), f.number("true")
+    # A learned weight is clipped to [lower, upper] (default [0, inf)); a fixed one (learned = false)
+    # is only checked against the bounds the file gives, and its clip range defaults to [initial].
+    lower = f.number("lower", 0.0 if learned else -math.inf)
+    upper = f.number("upper", math.inf, expected="a finite number (leave it out for no upper bound)")
+    if lower > upper:
+        raise f.fail("lower", f"<= upper ({upper})", lower)
+    for key, value in (("initial", initial), ("true", true)):
+        if not lower <= value <= upper:
+            raise f.fail(key, f"within [lower, upper] = [{lower}, {upper}] of feature '{name}'", value)
+    if not learned:
+        lower = lower if "lower" in table else initial
+        upper = upper if "upper" in table else initial
+    step = f.number("step", 0.0)
+    if step < 0:
+        raise f.fail("step", "a number >= 0", step)
+    if "keep_out" in parameters:
+        for key in ("keep_out", "radius"):
+            f.get(key)  # a keep-out feature needs both: a missing one is named here
+        if table["keep_out"] not in scene:
+            objects = ", ".join(scene.names)
+            raise f.fail(
+                "keep_out", f"the name of an object of the task's [scene] ({objects})", table["keep_out"]
+            )
+    params = {key: _PARAMETER_READERS[key](f, key) for key in parameters if key in table}
+    return FeatureSpec(name, initial, true, step, lower, upper, learned, params)
+
+
 def _parse(data: dict[str, Any], source: str) -> Task:
-    r = _Reader(source, data, allowed=TASK_KEYS)
+    r = Reader(source, data, allowed=TASK_KEYS)
     angles = r.string("angles", "radians")
     if angles not in ("degrees", "radians"):
         raise r.fail("angles", "'degrees' or 'radians'", angles)
@@ -213,59 +256,21 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     start, goal = r.vector("start", 7) * scale, r.vector("goal", 7) * scale
     _check_limits(r, "start", start, scale, angles)
     _check_limits(r, "goal", goal, scale, angles)
-    waypoints = r.get("waypoints", 31)
-    if isinstance(waypoints, bool) or not isinstance(waypoints, int) or waypoints < 3:
-        raise r.fail("waypoints", "an integer >= 3", waypoints)
+    waypoints = _integer(r, "waypoints", 3, 31)
+    scene = _scene(r)
     feats = r.get("features")
     if not isinstance(feats, dict) or not feats:
         raise r.fail("features", "a table of feature tables, e.g. [features.table]", feats)
-    specs = []
-    for name, table in feats.items():
-        if name not in KNOWN_FEATURES:
-            close = difflib.get_close_matches(name, KNOWN_FEATURES, n=1)
-            hint = f"; did you mean '{close[0]}'?" if close else ""
-            raise ConfigError(
-                f"{source}: key 'features.{name}': unknown feature; known: {', '.join(KNOWN_FEATURES)}{hint}"
-            )
-        if not isinstance(table, dict):
-            raise r.fail(f"features.{name}", "a table", table)
-        f = _Reader(source, table, f"features.{name}.", FEATURE_KEYS)
-        learned = f.get("learned", True)
-        if not isinstance(learned, bool):
-            raise f.fail("learned", "true or false", learned)
-        initial, true = f.number("initial"), f.number("true")
-        # A learned weight is clipped to [lower, upper] (default [0, inf)); a fixed one (learned = false)
-        # is only checked against the bounds the file gives, and its clip range defaults to [initial].
-        lower = f.number("lower", 0.0 if learned else -math.inf)
-        upper = f.number("upper", math.inf, expected="a finite number (leave it out for no upper bound)")
-        if lower > upper:
-            raise f.fail("lower", f"<= upper ({upper})", lower)
-        for key, value in (("initial", initial), ("true", true)):
-            if not lower <= value <= upper:
-                raise f.fail(key, f"within [lower, upper] = [{lower}, {upper}] of feature '{name}'", value)
-        if not learned:
-            lower = lower if "lower" in table else initial
-            upper = upper if "upper" in table else initial
-        step = f.number("step", 0.0)
-        if step < 0:
-            raise f.fail("step", "a number >= 0", step)
-        specs.append(FeatureSpec(name, initial, true, step, lower, upper, learned))
+    specs = tuple(_feature(r, name, table, scene) for name, table in feats.items())
     task_feature = r.string("task_feature")
     if task_feature not in feats:
         raise r.fail("task_feature", f"one of the task's features {list(feats)}", task_feature)
-    s = r.table_of("scene", SCENE_KEYS)
-    samples = s.get("samples", 4)
-    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-        raise s.fail("samples", "an integer >= 1", samples)
-    scene = Scene(
-        table_height=s.number("table_height", Scene.table_height),
-        laptop_center=tuple(s.vector("laptop_center", 2, list(Scene.laptop_center))),  # type: ignore[arg-type]
-        human_center=tuple(s.vector("human_center", 2, list(Scene.human_center))),  # type: ignore[arg-type]
-        laptop_radius=s.number("laptop_radius", Scene.laptop_radius, positive=True),
-        human_radius=s.number("human_radius", Scene.human_radius, positive=True),
-        samples=samples,
-    )
-    return Task(
+    feature_frame = r.optional_string("feature_frame")
+    robot = _robot()
+    if feature_frame is not None and feature_frame not in robot.frame_names:
+        hint = did_you_mean(feature_frame, robot.frame_names)
+        raise r.fail("feature_frame", f"a frame of {robot.name}{hint}", feature_frame)
+    task = Task(
         name=r.string("name"),
         title=r.string("title", ""),
         start=start,
@@ -273,10 +278,16 @@ def _parse(data: dict[str, Any], source: str) -> Task:
         duration=r.number("duration", 15.0, positive=True),
         waypoints=waypoints,
         task_feature=task_feature,
-        features=tuple(specs),
+        features=specs,
         scene=scene,
         source=source,
+        feature_frame=feature_frame,
     )
+    try:  # the core's remaining checks (e.g. at most MAX_SAMPLES samples), named by the file
+        task.feature_set(robot)
+    except exceptions.PhriError as e:
+        raise ConfigError(f"{source}: {e}") from None
+    return task
 
 
 def _read_text(source: str, file: Any) -> str:

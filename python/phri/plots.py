@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from phri.config import Scene
+from phri._phri import Scene
 
 __all__ = [
     "DEMO_COLORS",
@@ -119,10 +119,12 @@ def plot_paths(
     scene: Scene | None = None,
     task: str = "",
     title: str = "",
+    keep_out: tuple[tuple[float, float], float] | None = None,
 ) -> Path:
     """Fig. 5 (right): the cup's (link_7) path for each strategy against the desired path, seen from
     above (x, y) and its height over time. `desired` and each of `executed` (by strategy) are
-    (t [s], positions (N, 3) [m]); with `scene`, the task's keep-out zone and the table top are drawn."""
+    (t [s], positions (N, 3) [m]); the task's `keep_out` circle (centre, radius [m]) and, with
+    `scene`, the laptop (task "laptop") and the table top are drawn."""
     plt = pyplot()
     layout = "constrained" if style.detailed else None
     fig, (top, side) = plt.subplots(1, 2, figsize=style.figsize, layout=layout)
@@ -136,8 +138,7 @@ def plot_paths(
     for strategy, (t, e) in executed.items():
         top.plot(e[:, 0], e[:, 1], color=style.colors.get(strategy), lw=style.width, label=strategy)
         side.plot(t, e[:, 2], color=style.colors.get(strategy), lw=style.width, label=strategy)
-    if scene is not None:
-        _draw_scene(top, side, task, scene)
+    _draw_scene(top, side, task, scene, keep_out)
     top.set(xlabel="x [m]", ylabel="y [m]", title=style.titles[0])
     top.set_aspect("equal", adjustable="datalim" if style.detailed else "box")
     side.set(xlabel="time [s]", ylabel=style.height_label, title=style.titles[1])
@@ -152,24 +153,25 @@ def plot_paths(
     return _save(fig, path, style.dpi)
 
 
-def _draw_scene(top: Any, side: Any, task: str, scene: Scene) -> None:
-    """The scene in the path figure: the laptop's or the person's keep-out circle (tasks "laptop" and
-    "human"), the laptop itself, and the table top in the height panel. The only reader of scene
-    values here."""
+def _draw_scene(
+    top: Any, side: Any, task: str, scene: Scene | None, keep_out: tuple[tuple[float, float], float] | None
+) -> None:
+    """The scene in the path figure: the task's keep-out circle, the laptop (task "laptop") and the
+    table top in the height panel. The only reader of scene values here."""
     import matplotlib.patches as patches
 
-    if task in ("laptop", "human"):
-        (cx, cy), radius = (
-            (scene.laptop_center, scene.laptop_radius)
-            if task == "laptop"
-            else (scene.human_center, scene.human_radius)
-        )
+    if keep_out is not None:
+        (cx, cy), radius = keep_out
         top.add_patch(patches.Circle((cx, cy), radius, fill=False, ls="--", color="red", lw=1))
         top.annotate(f"{task} keep-out ({radius} m)", (cx, cy - radius), ha="center",
                      va="top", fontsize=9, color="red")  # fmt: skip
-    if task == "laptop":
-        lx, ly = scene.laptop_center
-        top.add_patch(patches.Rectangle((lx - 0.115, ly + 0.1 - 0.15), 0.23, 0.30, color="0.2", alpha=0.6))
-    side.axhline(scene.table_height, color="saddlebrown", lw=1.5)
-    side.annotate("table top", (0, scene.table_height), textcoords="offset points", xytext=(3, 3), fontsize=9,
-                  color="saddlebrown")  # fmt: skip
+    if scene is None:
+        return
+    laptop, table = scene.get("laptop"), scene.get("table")
+    if task == "laptop" and laptop is not None and laptop.size is not None:
+        (lx, ly, _), (sx, sy, _) = laptop.position, laptop.size
+        top.add_patch(patches.Rectangle((lx - sx / 2, ly - sy / 2), sx, sy, color="0.2", alpha=0.6))
+    if table is not None:
+        side.axhline(table.top, color="saddlebrown", lw=1.5)
+        side.annotate("table top", (0, table.top), textcoords="offset points", xytext=(3, 3), fontsize=9,
+                      color="saddlebrown")  # fmt: skip

@@ -13,6 +13,7 @@ pub mod data;
 pub mod deform;
 pub mod dynamics;
 pub mod error;
+pub mod feature_specs;
 pub mod features;
 pub mod impedance;
 pub mod interaction;
@@ -20,6 +21,7 @@ pub mod kinematics;
 pub mod learner;
 pub mod model;
 pub mod reference;
+pub mod scene;
 pub mod trajopt;
 pub mod update;
 

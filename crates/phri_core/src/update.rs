@@ -36,16 +36,14 @@ impl UpdateRule {
         UpdateRule::NAMES[i]
     }
 
-    /// The rule named `name`, or an UnknownName error naming `arg` and the known rules.
+    /// The rule named `name`, or an InvalidParameter error naming `arg` and the known rules.
     pub fn from_name(arg: &str, name: &str) -> Result<Self> {
         match UpdateRule::NAMES.iter().position(|n| *n == name) {
             Some(i) => Ok(UpdateRule::ALL[i]),
-            None => Err(PhriError::UnknownName {
-                arg: arg.into(),
-                kind: "update rule".into(),
-                name: name.into(),
-                known: UpdateRule::NAMES.join(", "),
-            }),
+            None => {
+                let known = UpdateRule::NAMES.map(|n| format!("'{n}'")).join(", ");
+                Err(PhriError::invalid(arg, format!("must be one of {known}, got '{name}'")))
+            }
         }
     }
 }

@@ -1,12 +1,16 @@
 //! `phri.Features`: trajectory feature counts Φ(ξ) and their gradients, one native call per trajectory.
 
 use numpy::{PyArray1, PyArrayDyn, PyArrayMethods};
-use phri_core::features::{FeatureSet, SceneParams};
+use phri_core::feature_specs::{feature_parameters, feature_set, FeatureParams, FeatureSpec, KeepoutSpec, DEFAULT_SAMPLES};
+use phri_core::features::{FeatureSet, BUILTIN_FEATURES};
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyMapping, PyString, PyTuple};
 
 use crate::arrays::{matrix, vector, ArrayIn};
 use crate::errors::{error, IntoPy, Kind};
 use crate::robot::PyRobot;
+use crate::scene::PyScene;
 
 /// Task features of a trajectory (paper eq. 3 and the authors' definitions), evaluated at the origin
 /// of `frame`. A trajectory `xi` is an (N, n) array, one waypoint per row; Φ(ξ) sums each feature
@@ -15,6 +19,7 @@ use crate::robot::PyRobot;
 pub struct PyFeatures {
     pub(crate) set: FeatureSet,
     n: usize,
+    frame: String,
 }
 
 fn output<'py>(py: Python<'py>, values: Vec<f64>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
@@ -35,51 +40,134 @@ impl PyFeatures {
     }
 }
 
+/// The specification of item `i` of the `features` argument: a built-in name, or a mapping with
+/// "name" and that feature's parameters.
+fn spec(i: usize, item: &Bound<'_, PyAny>) -> PyResult<FeatureSpec> {
+    let arg = format!("features[{i}]");
+    if let Ok(name) = item.extract::<String>() {
+        return Ok(FeatureSpec { name, params: FeatureParams::None });
+    }
+    let map = item.cast::<PyMapping>().map_err(|_| {
+        PyTypeError::new_err(format!("{arg} must be a feature name or a mapping with \"name\" and its parameters"))
+    })?;
+    let name: String = match map.get_item("name") {
+        Ok(v) => v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}[\"name\"] must be a string")))?,
+        Err(_) => return Err(error(Kind::InvalidParameter, format!("{arg} needs a \"name\""))),
+    };
+    let takes = feature_parameters(&name);
+    let mut given = std::collections::HashMap::new();
+    for key in map.keys()?.iter() {
+        let key: String = key.extract().map_err(|_| PyTypeError::new_err(format!("{arg}: keys must be strings")))?;
+        if key == "name" {
+            continue;
+        }
+        if !takes.contains(&key.as_str()) {
+            let list = if takes.is_empty() { "none".to_string() } else { takes.join(", ") };
+            return Err(error(
+                Kind::InvalidParameter,
+                format!("{arg}.{key}: feature '{name}' takes no parameter '{key}' (it takes: {list})"),
+            ));
+        }
+        given.insert(key.clone(), map.get_item(&key)?);
+    }
+    let number = |key: &str| -> PyResult<Option<f64>> {
+        given
+            .get(key)
+            .map(|v| v.extract::<f64>().map_err(|_| PyTypeError::new_err(format!("{arg}.{key} must be a number"))))
+            .transpose()
+    };
+    let params = if takes.contains(&"keep_out") {
+        let keep_out: String = match given.get("keep_out") {
+            Some(v) => v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}.keep_out must be a scene object's name")))?,
+            None => {
+                return Err(error(
+                    Kind::InvalidParameter,
+                    format!("{arg}.keep_out: feature '{name}' needs the scene object it keeps away from"),
+                ))
+            }
+        };
+        let radius = number("radius")?.ok_or_else(|| {
+            error(Kind::InvalidParameter, format!("{arg}.radius: feature '{name}' needs its keep-out radius [m]"))
+        })?;
+        let offset = match given.get("offset") {
+            Some(v) => {
+                let a: ArrayIn<'_> = v.extract()?;
+                let o = vector(&format!("{arg}.offset"), &a, 2)?;
+                [o[0], o[1]]
+            }
+            None => [0.0, 0.0],
+        };
+        let samples = match given.get("samples") {
+            Some(v) => {
+                let n: i64 = v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}.samples must be an integer")))?;
+                usize::try_from(n).map_err(|_| {
+                    error(Kind::InvalidParameter, format!("{arg}.samples must be at least 1 point per segment, got {n}"))
+                })?
+            }
+            None => DEFAULT_SAMPLES,
+        };
+        FeatureParams::Keepout(KeepoutSpec { keep_out, radius, offset, samples })
+    } else if takes.contains(&"height") {
+        FeatureParams::Table { height: number("height")?.unwrap_or(0.0) }
+    } else {
+        FeatureParams::None
+    };
+    Ok(FeatureSpec { name, params })
+}
+
+/// Per built-in feature, the names of its parameters (`phri._phri.FEATURE_PARAMETERS`).
+pub fn parameters(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let out = PyDict::new(py);
+    for name in BUILTIN_FEATURES {
+        out.set_item(name, PyTuple::new(py, feature_parameters(name))?)?;
+    }
+    Ok(out)
+}
+
 #[pymethods]
 impl PyFeatures {
-    /// `names` from "efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin";
-    /// scene numbers in metres (defaults: the original study); `ranges` divides each feature by
-    /// its normalisation range (default 1).
+    /// `features`: per feature a built-in name (see `FEATURE_NAMES`) or a mapping with "name" and
+    /// that feature's parameters: "table" takes `height` [m] (default 0, the authors' raw z);
+    /// "laptop" and "human" take `keep_out` (the `scene` object they keep away from), `radius` [m],
+    /// `offset` (x, y) of the circle's centre from the object [m] (default 0, 0) and `samples`
+    /// per segment (default 4). `frame` defaults to the robot's feature frame; `ranges` divides
+    /// each feature by its normalisation range (default 1).
     #[new]
-    #[pyo3(signature = (
-        robot, names, frame = "j2s7s300_link_7", *, table_height = 0.0, laptop_center = (-0.7929, -0.1),
-        human_center = (0.0, 0.2), laptop_radius = 0.4, human_radius = 0.4, samples = 4, ranges = None
-    ))]
-    #[pyo3(text_signature = "(robot, names, frame='j2s7s300_link_7', *, table_height=0.0, \
-                             laptop_center=(-0.7929, -0.1), human_center=(0.0, 0.2), laptop_radius=0.4, human_radius=0.4, \
-                             samples=4, ranges=None)")]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (robot, features, *, scene = None, frame = None, ranges = None))]
     fn new(
         robot: PyRef<'_, PyRobot>,
-        names: Vec<String>,
-        frame: &str,
-        table_height: f64,
-        laptop_center: (f64, f64),
-        human_center: (f64, f64),
-        laptop_radius: f64,
-        human_radius: f64,
-        samples: i64,
+        features: &Bound<'_, PyAny>,
+        scene: Option<PyRef<'_, PyScene>>,
+        frame: Option<&str>,
         ranges: Option<ArrayIn<'_>>,
     ) -> PyResult<Self> {
-        let samples = usize::try_from(samples)
-            .map_err(|_| error(Kind::InvalidParameter, format!("samples must be at least 1 point per segment, got {samples}")))?;
-        let scene = SceneParams {
-            table_height,
-            laptop_center: [laptop_center.0, laptop_center.1],
-            human_center: [human_center.0, human_center.1],
-            laptop_radius,
-            human_radius,
-            samples,
+        if features.is_instance_of::<PyString>() {
+            return Err(PyTypeError::new_err("features must be a list of feature names or mappings, not a string"));
+        }
+        let specs = features.try_iter()?.enumerate().map(|(i, item)| spec(i, &item?)).collect::<PyResult<Vec<_>>>()?;
+        let frame = match frame {
+            Some(f) => f.to_string(),
+            None => robot.frames.feature.clone().ok_or_else(|| {
+                error(
+                    Kind::InvalidParameter,
+                    format!("frame: robot '{}' declares no feature frame (no robot description); pass frame=", robot.model.name),
+                )
+            })?,
         };
         let model = robot.model.clone();
-        let frame = model.frame_id(frame).py_err()?;
-        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        let frame_id = model.frame_id(&frame).py_err()?;
         let n = model.nq();
-        let mut set = FeatureSet::from_names(model, frame, &names, &scene).py_err()?;
+        let mut set = feature_set(model, frame_id, &specs, scene.as_ref().map(|s| &s.scene)).py_err()?;
         if let Some(r) = &ranges {
             set.set_ranges(Some(&*vector("ranges", r, set.len())?)).py_err()?;
         }
-        Ok(PyFeatures { set, n })
+        Ok(PyFeatures { set, n, frame })
+    }
+
+    /// The frame whose origin the features read.
+    #[getter]
+    fn frame(&self) -> &str {
+        &self.frame
     }
 
     /// Feature names, in the order of every output.

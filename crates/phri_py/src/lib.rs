@@ -12,6 +12,7 @@ mod interaction;
 mod learner;
 mod reference;
 mod robot;
+mod scene;
 mod trajopt;
 mod update;
 
@@ -20,6 +21,10 @@ fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<robot::PyRobot>()?;
     m.add_class::<features::PyFeatures>()?;
+    m.add("FEATURE_NAMES", pyo3::types::PyTuple::new(m.py(), phri_core::features::BUILTIN_FEATURES)?)?;
+    m.add("FEATURE_PARAMETERS", features::parameters(m.py())?)?;
+    m.add_class::<scene::PySceneObject>()?;
+    m.add_class::<scene::PyScene>()?;
     m.add_class::<update::PyWeightUpdate>()?;
     m.add_class::<update::PyUpdateInfo>()?;
     m.add_function(wrap_pyfunction!(update::relevance, m)?)?;

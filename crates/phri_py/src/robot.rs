@@ -16,12 +16,25 @@ use crate::errors::IntoPy;
 pub struct PyRobot {
     pub model: Arc<RobotModel>,
     data: RobotData,
+    /// The frames a robot description declares (None for a robot read from a bare URDF).
+    pub frames: RobotFrames,
+}
+
+/// Frames phri uses, as a robot description beside the URDF names them.
+#[derive(Clone, Default)]
+pub struct RobotFrames {
+    /// The point the features read by default.
+    pub feature: Option<String>,
+    /// The tool point, where the person pushes.
+    pub hand: Option<String>,
+    /// Where the robot holds the cup.
+    pub cup: Option<String>,
 }
 
 impl PyRobot {
     pub fn new(model: RobotModel) -> Self {
         let data = model.data();
-        PyRobot { model: Arc::new(model), data }
+        PyRobot { model: Arc::new(model), data, frames: RobotFrames::default() }
     }
 
     fn frame(&self, name: &str) -> PyResult<FrameId> {
@@ -80,17 +93,52 @@ impl PyRobot {
         Ok(PyRobot::new(RobotModel::from_urdf_str(urdf, base, tip).py_err()?))
     }
 
-    /// The Kinova JACO2 7-DoF arm of the study, from the URDF shipped with phri (base `root`,
-    /// tip `j2s7s300_end_effector`).
+    /// A robot from its description (`robot.toml` beside the URDF, read by `phri.robots.load`):
+    /// a shipped robot's name ("jaco2") or a description file's path.
+    #[staticmethod]
+    fn from_description(py: Python<'_>, name_or_path: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let d = py.import("phri.robots")?.call_method1("load", (name_or_path,))?;
+        let text: String = d.call_method0("urdf_text")?.extract()?;
+        let (base, tip): (String, String) = (d.getattr("base")?.extract()?, d.getattr("tip")?.extract()?);
+        let model = RobotModel::from_urdf_str(&text, Some(&base), Some(&tip)).py_err()?;
+        let mut frames = RobotFrames::default();
+        for (key, slot) in
+            [("feature_frame", &mut frames.feature), ("hand_frame", &mut frames.hand), ("cup_frame", &mut frames.cup)]
+        {
+            let name: Option<String> = d.getattr(key)?.extract()?;
+            if let Some(n) = &name {
+                model.frame_id(n).py_err()?;
+            }
+            *slot = name;
+        }
+        let mut robot = PyRobot::new(model);
+        robot.frames = frames;
+        Ok(robot)
+    }
+
+    /// The Kinova JACO2 7-DoF arm of the study, from the description shipped with phri
+    /// (`phri/robots/jaco2/robot.toml`).
     #[staticmethod]
     fn jaco2(py: Python<'_>) -> PyResult<Self> {
-        let text: String = py
-            .import("importlib.resources")?
-            .call_method1("files", ("phri",))?
-            .call_method1("joinpath", ("robots/jaco2/j2s7s300.urdf",))?
-            .call_method0("read_text")?
-            .extract()?;
-        Ok(PyRobot::new(RobotModel::from_urdf_str(&text, Some("root"), Some("j2s7s300_end_effector")).py_err()?))
+        Self::from_description(py, &"jaco2".into_pyobject(py)?.into_any())
+    }
+
+    /// The frame the features read unless told otherwise (None if the robot has no description).
+    #[getter]
+    fn feature_frame(&self) -> Option<&str> {
+        self.frames.feature.as_deref()
+    }
+
+    /// The tool point, where the person pushes (None if the robot has no description).
+    #[getter]
+    fn hand_frame(&self) -> Option<&str> {
+        self.frames.hand.as_deref()
+    }
+
+    /// The frame at which the robot holds the cup (None if the robot has no description).
+    #[getter]
+    fn cup_frame(&self) -> Option<&str> {
+        self.frames.cup.as_deref()
     }
 
     /// A copy of this robot carrying a rigid payload at `frame`: `mass` [kg], `com` its centre of
@@ -107,7 +155,9 @@ impl PyRobot {
             None => Matrix3::zeros(),
         };
         let model = (*self.model).clone().with_payload(id, mass, com, inertia).py_err()?;
-        Ok(PyRobot::new(model))
+        let mut robot = PyRobot::new(model);
+        robot.frames = self.frames.clone();
+        Ok(robot)
     }
 
     /// Robot name from the URDF.

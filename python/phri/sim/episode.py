@@ -12,12 +12,12 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from phri._phri import (
     Deformation,
-    Features,
     ImpedanceController,
     InteractionDetector,
     Learner,
@@ -27,8 +27,9 @@ from phri._phri import (
     TrajoptInfo,
     WeightUpdate,
 )
+from phri._validate import must_be
 from phri.atomic import write_atomic
-from phri.config import Task
+from phri.config import TABLE, Task
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.participant import Participant, ParticipantParams
 from phri.sim.world import HAND, World, WorldParams
@@ -52,7 +53,7 @@ STRATEGIES = ("impedance", "learning")
 RULES = ("all", "max", "confidence")
 #: The tool point stays this far above the table top (the original kept a finger above z = 0) [m].
 HAND_CLEARANCE = 0.1016
-#: link_7's origin (the cup) stays this far above the table top [m].
+#: The features' point (the cup: link_7's origin on the JACO2) stays this far above the table top [m].
 CUP_CLEARANCE = 0.06
 #: Plans move each joint at most this fraction of its velocity limit (between waypoints).
 VELOCITY_MARGIN = 0.5
@@ -98,25 +99,25 @@ class EpisodeConfig:
     transition_speed: float = 0.8
 
     def __post_init__(self) -> None:
+        def fail(key: str, expected: str, got: Any, show: Any = str) -> Exception:
+            return must_be(key, expected, got, error=InvalidParameterError, show=show)
+
         if self.strategy not in STRATEGIES:
-            raise InvalidParameterError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+            raise fail("strategy", f"one of {STRATEGIES}", self.strategy, repr)
         if not 0 < self.sample_rate <= 1000:
-            raise InvalidParameterError(f"sample_rate must be in (0, 1000] Hz, got {self.sample_rate}")
+            raise fail("sample_rate", "in (0, 1000] Hz", self.sample_rate)
         if not 0 < self.log_rate <= 1000:
-            raise InvalidParameterError(f"log_rate must be in (0, 1000] Hz, got {self.log_rate}")
+            raise fail("log_rate", "in (0, 1000] Hz", self.log_rate)
         # Against the default simulator rate here; run_episode checks against the world's own.
         steps_per_period("sample_rate", self.sample_rate, WorldParams().timestep)
         steps_per_period("log_rate", self.log_rate, WorldParams().timestep)
         if not (math.isfinite(self.sensor_noise) and self.sensor_noise >= 0):
-            raise InvalidParameterError(
-                f"sensor_noise must be a finite value >= 0 N·m, got {self.sensor_noise}"
-            )
+            raise fail("sensor_noise", "a finite value >= 0 N·m", self.sensor_noise)
         if self.rule not in RULES:
-            raise InvalidParameterError(f"rule must be one of {RULES}, got {self.rule!r}")
+            raise fail("rule", f"one of {RULES}", self.rule, repr)
         if not 0 <= self.transition_speed <= 1:
-            raise InvalidParameterError(
-                "transition_speed must be a fraction of the velocity limits in [0, 1], "
-                f"got {self.transition_speed}"
+            raise fail(
+                "transition_speed", "a fraction of the velocity limits in [0, 1]", self.transition_speed
             )
         for key, positive in (("sensor_bias", False), ("thresholds", True), ("detector_bias", False)):
             value = getattr(self, key)
@@ -208,16 +209,20 @@ class Planner:
     """The task's features and optimiser, and the plans for its initial and true weights."""
 
     def __init__(self, task: Task, world: World) -> None:
-        s = task.scene
         self.task = task
-        self.features = Features(
-            world.model, task.feature_names, laptop_center=s.laptop_center, human_center=s.human_center,
-            laptop_radius=s.laptop_radius, human_radius=s.human_radius, samples=s.samples,
-        )  # fmt: skip
-        clearance = [
-            (HAND, s.table_height + HAND_CLEARANCE),
-            ("j2s7s300_link_7", s.table_height + CUP_CLEARANCE),
-        ]
+        self.features = task.feature_set(world.model)
+        #: Height of the table's top [m], which the hand and the cup stay above (None: no table in
+        #: the task's scene, so no clearance).
+        table = task.scene.get(TABLE)
+        self.table_top = None if table is None else table.top
+        clearance = (
+            []
+            if self.table_top is None
+            else [
+                (HAND, self.table_top + HAND_CLEARANCE),
+                (self.features.frame, self.table_top + CUP_CLEARANCE),
+            ]
+        )
         # Joint speeds within the arm's limits, with a margin for tracking.
         spacing = task.duration / (task.waypoints - 1)
         max_step = VELOCITY_MARGIN * world.model.velocity_limits * spacing
@@ -241,8 +246,8 @@ class Planner:
             raise PlanningError(
                 f"{task.source}: the plan for the {weights} weights cannot keep the hand "
                 f"{HAND_CLEARANCE} m and the cup {CUP_CLEARANCE} m above the table top "
-                f"(z = {task.scene.table_height} m): it dips {info.max_violation:.3f} m below; "
-                "check start, goal and scene.table_height"
+                f"(z = {self.table_top} m): it dips {info.max_violation:.3f} m below; "
+                f"check start, goal and [scene.{TABLE}]"
             )
         if excess[i, j] > STEP_TOLERANCE * self.max_step[j]:
             needed = task.duration * (1 + excess[i, j] / self.max_step[j])
@@ -451,7 +456,7 @@ def _score(
     )
     executed = trace.series["q"][idx]
     phi = planner.features.phi(executed)
-    frame = "j2s7s300_link_7"
+    frame = planner.features.frame
     rows = trace.rows
     return EpisodeResult(
         task=task.name,

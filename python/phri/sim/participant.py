@@ -99,8 +99,12 @@ class Participant:
         robot: Robot,
         rng: np.random.Generator,
         dt: float = 1e-3,
-        frame: str = "j2s7s300_link_7",
+        frame: str | None = None,
     ) -> None:
+        """`frame` is the cup the person watches (default: the robot's feature frame)."""
+        frame = frame or robot.feature_frame
+        if frame is None:
+            raise InvalidParameterError(f"frame: robot '{robot.name}' declares no feature frame; pass frame=")
         self.params, self.robot, self.rng, self.frame, self.dt = params, robot, rng, frame, dt
         self.rotational = task_feature in ("coffee", "coffee_dot")
         times = np.arange(0.0, desired.duration + dt / 2, dt)

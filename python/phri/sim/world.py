@@ -1,8 +1,10 @@
-"""The simulated study scene in PyBullet: the JACO2 on its mount holding a cup, the table, the
-laptop and a stand-in for the person, stepped at 1 kHz in torque control.
+"""The simulated study scene in PyBullet: the JACO2 on its mount holding a cup and the objects of
+a task's scene (the study's: the table, the laptop and a stand-in for the person), stepped at 1 kHz
+in torque control.
 
-Positions are those of original_system.md (robot base frame, z up, metres). PyBullet runs in DIRECT
-mode unless ``gui=True``. Pictures come from PyBullet's software renderer (no display needed).
+Positions are the scene's (robot base frame, z up, metres). The person is visual only: the arm may
+pass through their stand-in, as it is the person who moves it. PyBullet runs in DIRECT mode unless
+``gui=True``. Pictures come from PyBullet's software renderer (no display needed).
 """
 
 from __future__ import annotations
@@ -21,17 +23,25 @@ from pathlib import Path
 
 import numpy as np
 
-from phri._phri import Robot
-from phri.config import Scene
+from phri import robots
+from phri._phri import Robot, Scene, SceneObject
+from phri.config import TABLE
 from phri.exceptions import SimulationError
 
 __all__ = ["CUP_INERTIA", "CUP_MASS", "World", "WorldParams"]
 
 CUP_MASS = 0.3  # kg, the shipped cup.urdf
 CUP_INERTIA = np.diag([0.00037, 0.00037, 0.00024])  # kg·m² about its centre, cup frame axes
-HAND = "j2s7s300_end_effector"
-CUP_FRAME = "j2s7s300_cup_frame"
-LINK_7 = "j2s7s300_link_7"
+#: The simulated arm's description (its URDF and frame names).
+JACO2 = robots.load("jaco2")
+HAND: str = JACO2.hand_frame  # type: ignore[assignment]
+CUP_FRAME: str = JACO2.cup_frame  # type: ignore[assignment]
+#: Colours (RGBA) of the study's objects by name; others are grey, the person skin-coloured.
+COLORS = {"table": [0.6, 0.45, 0.3, 1], "laptop": [0.15, 0.15, 0.18, 1]}
+PERSON_COLOR = [0.85, 0.6, 0.45, 0.35]
+OTHER_COLOR = [0.5, 0.5, 0.5, 1]
+#: The robot's mount stands this far below the table top, on the floor [m].
+MOUNT_DEPTH = 0.7
 
 
 @dataclass(frozen=True)
@@ -99,7 +109,7 @@ def _asset(*parts: str) -> str:
 
 def arm_with_cup_urdf() -> str:
     """The shipped arm with the shipped cup fixed at its cup frame, as one URDF document."""
-    arm = ET.parse(_asset("jaco2", "j2s7s300.urdf")).getroot()
+    arm = ET.parse(JACO2.urdf).getroot()
     cup = ET.parse(_asset("jaco2", "cup.urdf")).getroot()
     for material in cup.findall("material"):
         arm.insert(0, material)
@@ -117,7 +127,10 @@ class World:
     def __init__(self, scene: Scene | None = None, params: WorldParams | None = None) -> None:
         p = _pybullet()
         self.p = p
-        self.scene = scene or Scene()
+        self.scene = Scene() if scene is None else scene
+        #: PyBullet body of each scene object, by name; the robot's stand is `mount_id`.
+        self.bodies: dict[str, int] = {}
+        self.mount_id: int | None = None
         self.params = params or WorldParams()
         self.client = p.connect(p.GUI if self.params.gui else p.DIRECT)
         c = self.client
@@ -126,7 +139,7 @@ class World:
         # The arm and its cup as one multibody (a rigid grasp): no constraint for the solver to chase.
         # Self-collision stays off: adjacent primitives overlap at the joints by design.
         with tempfile.TemporaryDirectory() as folder:
-            urdf = Path(folder) / "j2s7s300_with_cup.urdf"
+            urdf = Path(folder) / "arm_with_cup.urdf"
             urdf.write_text(arm_with_cup_urdf(), encoding="utf-8")
             self.robot_id = p.loadURDF(
                 str(urdf), useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c
@@ -152,34 +165,52 @@ class World:
         self.model = Robot.jaco2().with_payload(CUP_FRAME, CUP_MASS, inertia=CUP_INERTIA)
 
     def _build_scene(self) -> None:
-        p, c, s = self.p, self.client, self.scene
+        p, c = self.p, self.client
+        table = self.scene.get(TABLE)
+        top = None if table is None else table.top
+        if top is not None:
+            # The robot's stand (not a scene object): from the floor under the table to the base.
+            half = [0.08, 0.08, (0.0 - (top - MOUNT_DEPTH)) / 2]
+            vis = p.createVisualShape(
+                p.GEOM_BOX, halfExtents=half, rgbaColor=[0.3, 0.3, 0.3, 1], physicsClientId=c
+            )
+            self.mount_id = p.createMultiBody(
+                0, -1, vis, basePosition=[0.0, 0.0, (top - MOUNT_DEPTH) / 2], physicsClientId=c
+            )
+        for obj in self.scene.objects:
+            self.bodies[obj.name] = self._body(obj)
 
-        def box(half, pos, rgba, collide=True):
-            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c) if collide else -1
-            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=rgba, physicsClientId=c)
-            return p.createMultiBody(0, col, vis, basePosition=pos, physicsClientId=c)
-
-        top = s.table_height
-        # Mount under the robot base, table top at `table_height`, spanning x in [-0.81, 0].
-        self.mount_id = box(
-            [0.08, 0.08, (0.0 - (top - 0.7)) / 2], [0.0, 0.0, (top - 0.7) / 2], [0.3, 0.3, 0.3, 1], False
+    def _body(self, obj: SceneObject) -> int:
+        """A static PyBullet body for `obj`; the person's is visual only (it must not block the arm)."""
+        p, c = self.p, self.client
+        person = obj.kind == "person"
+        rgba = PERSON_COLOR if person else COLORS.get(obj.name, OTHER_COLOR)
+        # PyBullet spells a cylinder's length "height" for collision shapes, "length" for visual ones.
+        if obj.shape == "box" and obj.size is not None:
+            collision = visual = {"shapeType": p.GEOM_BOX, "halfExtents": [float(h) / 2 for h in obj.size]}
+        elif obj.shape == "cylinder":
+            collision = {"shapeType": p.GEOM_CYLINDER, "radius": obj.radius, "height": obj.length}
+            visual = {"shapeType": p.GEOM_CYLINDER, "radius": obj.radius, "length": obj.length}
+        elif obj.shape == "sphere":
+            collision = visual = {"shapeType": p.GEOM_SPHERE, "radius": obj.radius}
+        else:
+            collision = visual = {"shapeType": p.GEOM_PLANE, "planeNormal": [0, 0, 1]}
+        col = -1 if person else p.createCollisionShape(**collision, physicsClientId=c)
+        vis = p.createVisualShape(**visual, rgbaColor=rgba, physicsClientId=c)
+        position = [float(x) for x in obj.position]
+        orientation = p.getQuaternionFromEuler([float(a) for a in obj.rpy])
+        return p.createMultiBody(
+            0, col, vis, basePosition=position, baseOrientation=orientation, physicsClientId=c
         )
-        self.table_id = box([0.405, 0.81, 0.02], [-0.405, 0.0, top - 0.02], [0.6, 0.45, 0.3, 1])
-        lx, ly = s.laptop_center
-        self.laptop_id = box([0.115, 0.15, 0.0125], [lx, ly + 0.1, top + 0.0125], [0.15, 0.15, 0.18, 1])
-        # The person: a visual-only column at the human feature centre (it must not block the arm).
-        hx, hy = s.human_center
-        vis = self.p.createVisualShape(
-            p.GEOM_CYLINDER, radius=0.15, length=1.7, rgbaColor=[0.85, 0.6, 0.45, 0.35], physicsClientId=c
-        )
-        self.human_id = p.createMultiBody(0, -1, vis, basePosition=[hx, hy, top + 0.85], physicsClientId=c)
 
     def set_scene(self, scene: Scene) -> None:
-        """Moves the table, laptop and person to `scene` (a task's [scene]); no-op if already there."""
+        """Moves the world to `scene` (a task's [scene]); no-op if already there."""
         if scene == self.scene:
             return
-        for body in (self.mount_id, self.table_id, self.laptop_id, self.human_id):
-            self.p.removeBody(body, physicsClientId=self.client)
+        for body in [self.mount_id, *self.bodies.values()]:
+            if body is not None:
+                self.p.removeBody(body, physicsClientId=self.client)
+        self.bodies, self.mount_id = {}, None
         self.scene = scene
         self._build_scene()
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from phri.config import Scene
+from phri._phri import Scene
 from phri.plots import REPORT_PATHS, STUDY_COLORS, pyplot
 from phri.plots import plot_paths as plot_path_figure
 
@@ -19,7 +19,6 @@ __all__ = ["COLORS", "plot_cost", "plot_effort_time", "plot_paths", "read_paths"
 COLORS = STUDY_COLORS
 #: p below this gets an asterisk (the paper's convention: p < 0.0001).
 STAR = 1e-4
-LINK_7 = "j2s7s300_link_7"
 
 
 def _task_label(task: str, familiarization: str | None, tasks: Sequence[str]) -> str:
@@ -133,13 +132,15 @@ def read_paths(log: str | Path) -> dict[str, np.ndarray]:
     with np.load(log) as data:
         t, q, desired = data["t"], data["q"], data["desired"]
     robot = Robot.jaco2()
+    cup = robot.feature_frame
+    assert cup is not None, "the JACO2's description names its feature frame"
     duration = float(t[-1]) if len(t) > 1 else 1.0
     plan = TimedTrajectory(desired, duration)
     q_desired = plan.sample_many(t)[0]
     return {
         "t": t,
-        "executed": robot.frame_pose(LINK_7, q)[:, :3, 3],
-        "desired": robot.frame_pose(LINK_7, q_desired)[:, :3, 3],
+        "executed": robot.frame_pose(cup, q)[:, :3, 3],
+        "desired": robot.frame_pose(cup, q_desired)[:, :3, 3],
     }
 
 
@@ -150,13 +151,15 @@ def plot_paths(
     scene: Scene | None = None,
     task: str = "",
     title: str = "",
+    keep_out: tuple[tuple[float, float], float] | None = None,
 ) -> Path:
     """Fig. 5 (right): the cup's (link_7) path for each strategy against the desired path — seen
     from above (x, y) and its height over time. `logs` maps a strategy to its episode log; the desired
-    path is that of the first log."""
+    path is that of the first log; `scene`'s laptop and table top and the task's `keep_out` circle
+    (centre, radius [m]) are drawn if given."""
     paths = {strategy: read_paths(log) for strategy, log in logs.items()}
     first = next(iter(paths.values()))
     return plot_path_figure(
         path, (first["t"], first["desired"]), {s: (p["t"], p["executed"]) for s, p in paths.items()},
-        REPORT_PATHS, scene=scene or Scene(), task=task, title=title,
+        REPORT_PATHS, scene=scene, task=task, keep_out=keep_out, title=title,
     )  # fmt: skip

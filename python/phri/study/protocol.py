@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import sys
 import zlib
 from collections.abc import Iterator, Mapping
@@ -25,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from phri._validate import finite, is_integer, must_be
 from phri.config import STUDY_TASKS, Task, load_task, task_names
 from phri.exceptions import ConfigError, UnknownNameError
 from phri.sim.episode import STRATEGIES, EpisodeConfig
@@ -79,12 +79,10 @@ class StudyConfig:
     rule: str = "all"
 
     def __post_init__(self) -> None:
-        def fail(key: str, expected: str, got: Any) -> StudyConfigError:
-            return StudyConfigError(f"study: {key} must be {expected}, got {got!r}")
+        def fail(key: str, expected: str, got: Any) -> Exception:
+            return must_be(f"study: {key}", expected, got, error=StudyConfigError)
 
-        def integer(v: Any) -> bool:
-            return isinstance(v, int | np.integer) and not isinstance(v, bool)
-
+        integer = is_integer
         if not integer(self.participants) or self.participants < 1:
             raise fail("participants", "an integer >= 1", self.participants)
         if not integer(self.attempts) or self.attempts < 1:
@@ -119,16 +117,14 @@ class StudyConfig:
                 self.familiarization,
             )
         if self.duration is not None:
-            if isinstance(self.duration, bool) or not isinstance(self.duration, int | float):
-                raise fail("duration", "a number of seconds > 0 or none", self.duration)
-            if not (math.isfinite(self.duration) and self.duration > 0):
+            if not (finite(self.duration) and self.duration > 0):
                 raise fail("duration", "a number of seconds > 0 or none", self.duration)
             object.__setattr__(self, "duration", float(self.duration))
         if self.waypoints is not None and (not integer(self.waypoints) or self.waypoints < 3):
             raise fail("waypoints", "an integer >= 3 or none", self.waypoints)
         for key in ("sample_rate", "sensor_noise"):
             v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            if not finite(v):
                 raise fail(key, "a finite number", v)
             object.__setattr__(self, key, float(v))
         if self.waypoints is not None:

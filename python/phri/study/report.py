@@ -349,8 +349,9 @@ def _figures(
         where = f" in task '{task}'" if task is not None else ""
         return lines + [f"_No episode logs for {who} with every strategy{where} yet: no path figure._", ""]
     p, t, logs = sample
+    shown = config.load_tasks()[t]
     fig_paths = figures.plot_paths(
-        logs, out / "fig5_paths.png", scene=config.load_tasks()[t].scene, task=t,
+        logs, out / "fig5_paths.png", scene=shown.scene, task=t, keep_out=shown.keep_out_circle(t),
         title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
     )  # fmt: skip
     return lines + [

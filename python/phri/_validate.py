@@ -1,0 +1,121 @@
+"""One way to validate configuration, for task files, robot descriptions, the study and episode
+settings: errors name where the value came from (a file and its key, or the settings object), what
+was expected and what was given, and suggest a near match for a misspelt name."""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from phri.exceptions import ConfigError
+
+__all__ = ["Reader", "did_you_mean", "finite", "is_integer", "must_be", "unknown_key"]
+
+_NOTHING: Any = object()
+
+
+def must_be(
+    what: str, expected: str, got: Any = _NOTHING, *, error: type[Exception] = ConfigError, show: Any = repr
+) -> Exception:
+    """The error "{what} must be {expected}, got {show(got)}" of class `error`: `what` names where
+    the value came from ("file.toml: key 'duration'", "study: seed", "sample_rate")."""
+    got_text = "" if got is _NOTHING else f", got {show(got)}"
+    return error(f"{what} must be {expected}{got_text}")
+
+
+def is_integer(v: Any) -> bool:
+    """An integer (Python or numpy), not a boolean."""
+    return isinstance(v, int | np.integer) and not isinstance(v, bool)
+
+
+def did_you_mean(name: str, known: Sequence[str]) -> str:
+    """ "; did you mean 'x'?" for the closest of `known` to `name`, or ""."""
+    close = difflib.get_close_matches(name, list(known), n=1)
+    return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def finite(x: Any) -> bool:
+    """A TOML number (not a boolean) that is finite as a float (huge integers are not)."""
+    if isinstance(x, bool) or not isinstance(x, int | float):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
+
+
+def unknown_key(source: str, path: str, key: str, allowed: tuple[str, ...]) -> ConfigError:
+    """An error for `key` in the table at `path` ("" for the top level): the allowed keys, a near match."""
+    table = f"table [{path}]" if path else "the top-level table"
+    full = f"{path}.{key}" if path else key
+    return ConfigError(
+        f"{source}: unknown key '{full}' in {table}; allowed keys: {', '.join(allowed)}"
+        f"{did_you_mean(key, allowed)}"
+    )
+
+
+class Reader:
+    """Typed access to a TOML table with errors that name the file and key.
+
+    With `allowed`, a key the table does not know is an error (a typo must not fall back to a default).
+    """
+
+    def __init__(
+        self, source: str, table: dict[str, Any], prefix: str = "", allowed: tuple[str, ...] | None = None
+    ) -> None:
+        self.source, self.table, self.prefix = source, table, prefix
+        if allowed is not None:
+            for key in table:
+                if key not in allowed:
+                    raise unknown_key(source, prefix.rstrip("."), key, allowed)
+
+    def fail(self, key: str, expected: str, got: Any = _NOTHING) -> Exception:
+        return must_be(f"{self.source}: key '{self.prefix}{key}'", expected, got)
+
+    def get(self, key: str, default: Any = ...) -> Any:
+        if key in self.table:
+            return self.table[key]
+        if default is ...:
+            raise ConfigError(f"{self.source}: missing key '{self.prefix}{key}'")
+        return default
+
+    def number(
+        self, key: str, default: Any = ..., positive: bool = False, expected: str = "a finite number"
+    ) -> float:
+        """A finite number from the file; a default that is not in the file may be infinite."""
+        if key not in self.table and default is not ...:
+            return float(default)
+        v = self.get(key)
+        if not finite(v):
+            raise self.fail(key, expected, v)
+        if positive and not v > 0:
+            raise self.fail(key, "a number > 0", v)
+        return float(v)
+
+    def string(self, key: str, default: Any = ...) -> str:
+        v = self.get(key, default)
+        if not isinstance(v, str):
+            raise self.fail(key, "a string", v)
+        return v
+
+    def optional_string(self, key: str) -> str | None:
+        """A string, or None when the table has no `key`."""
+        return self.string(key) if key in self.table else None
+
+    def vector(self, key: str, length: int, default: Any = ...) -> np.ndarray:
+        v = self.get(key, default)
+        ok = isinstance(v, list | tuple) and len(v) == length and all(finite(x) for x in v)
+        if not ok:
+            raise self.fail(key, f"a list of {length} finite numbers", v)
+        return np.asarray(v, dtype=float)
+
+    def table_of(self, key: str, allowed: tuple[str, ...]) -> Reader:
+        """The sub-table `key` (empty if absent), its keys checked against `allowed`."""
+        v = self.get(key, {})
+        if not isinstance(v, dict):
+            raise self.fail(key, f"a table, e.g. [{self.prefix}{key}]", v)
+        return Reader(self.source, v, f"{self.prefix}{key}.", allowed)

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from phri._phri import (
+    UPDATE_RULES,
     Deformation,
     ImpedanceController,
     InteractionDetector,
@@ -49,8 +50,8 @@ __all__ = [
 ]
 
 STRATEGIES = ("impedance", "learning")
-#: Update rules of phri.WeightUpdate.
-RULES = ("all", "max", "confidence")
+#: Update rules of phri.WeightUpdate (their one home is the core).
+RULES = UPDATE_RULES
 #: The tool point stays this far above the table top (the original kept a finger above z = 0) [m].
 HAND_CLEARANCE = 0.1016
 #: The features' point (the cup: link_7's origin on the JACO2) stays this far above the table top [m].

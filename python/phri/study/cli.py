@@ -15,6 +15,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
+from phri._phri import UPDATE_RULES
 from phri.exceptions import PhriError
 
 __all__ = ["main", "register"]
@@ -62,7 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     g.add_argument("--waypoints", type=int, help="override every task's number of plan waypoints")
     g.add_argument("--sample-rate", type=float, help="torque sampling rate [Hz] (default 10)")
     g.add_argument("--sensor-noise", type=float, help="torque sensor noise [N·m] (default 0.1)")
-    g.add_argument("--rule", choices=("all", "max", "confidence"), help="weight-update rule (default all)")
+    g.add_argument("--rule", choices=UPDATE_RULES, help="weight-update rule (default all)")
     x = s.add_argument_group("execution (does not change the results)")
     x.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
                    help="where episodes run (default: a local process pool)")  # fmt: skip

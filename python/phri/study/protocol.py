@@ -133,8 +133,6 @@ class StudyConfig:
             EpisodeConfig(sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule)
         except ValueError as e:
             raise StudyConfigError(f"study: {e}") from None
-        if self.rule not in ("all", "max", "confidence"):
-            raise fail("rule", "'all', 'max' or 'confidence'", self.rule)
 
     # -- the study's parts ------------------------------------------------------------------------
 

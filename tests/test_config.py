@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 import phri
-from phri._phri import FEATURE_NAMES
 from phri.exceptions import ConfigError, UnknownNameError
 
 if sys.version_info >= (3, 11):
@@ -331,14 +330,6 @@ def test_the_keep_out_features_are_the_authors_circles() -> None:
     assert phri.load_task("human").keep_out_circle("laptop") is None
     for name in ("laptop", "human"):
         assert phri.load_task(name).features[1].params["samples"] == 4
-
-
-def test_feature_names_come_from_the_core() -> None:
-    assert FEATURE_NAMES == ("efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin")
-    stub = importlib.resources.files("phri").joinpath("_phri.pyi").read_text()
-    literal = re.search(r"_FeatureName = Literal\[(.*?)\]", stub)
-    assert literal is not None
-    assert tuple(n.strip().strip('"') for n in literal.group(1).split(",")) == FEATURE_NAMES
 
 
 def test_tasks_survive_pickling_for_worker_processes() -> None:

@@ -10,7 +10,7 @@ import pytest
 from phri import _phri
 
 # Stub alias → the native module's constant that defines its names.
-ALIASES = {"_UpdateRule": "UPDATE_RULES"}
+ALIASES = {"_FeatureName": "FEATURE_NAMES", "_UpdateRule": "UPDATE_RULES"}
 
 
 def stub_literals() -> dict[str, tuple[str, ...]]:
@@ -34,3 +34,8 @@ def test_stub_literal_matches_the_core(alias, constant):
     runtime = getattr(_phri, constant)
     assert isinstance(runtime, tuple)
     assert literals[alias] == runtime
+
+
+def test_the_core_names_are_the_papers():
+    assert _phri.FEATURE_NAMES == ("efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin")
+    assert _phri.UPDATE_RULES == ("all", "max", "confidence")

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from phri.exceptions import InvalidParameterError
-from phri.study.parallel import check_backend, make_backend
+from phri.study.parallel import Backend, check_backend, make_backend
 from phri.study.protocol import EpisodeSpec, StudyConfig
 from phri.study.results import ResultStore
 
@@ -71,15 +71,7 @@ def run_study(
     folder started with another phri version is refused (:class:`~phri.study.errors.StudyMismatchError`)
     unless `allow_version_change`.
     """
-    if max_episodes is not None and max_episodes < 0:
-        raise InvalidParameterError(f"max_episodes must be >= 0, got {max_episodes}")
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise InvalidParameterError(
-            f"workers must be an integer >= 1 (leave it out for the CPUs available), got {workers!r}"
-        )
-    if between_strategies is not None and backend != "serial":
-        raise InvalidParameterError("between_strategies (the questionnaire) needs backend='serial'")
-    check_backend(backend)  # before the folder is touched
+    _check_arguments(backend, workers, max_episodes, between_strategies)  # before the folder is touched
     began = time.perf_counter()
     store = ResultStore.open(run_dir, config, allow_version_change=allow_version_change)
     config = store.config
@@ -95,27 +87,10 @@ def run_study(
         ran = 0
         if pending:
             runner = make_backend(backend, config, workers, store.log_width, address)
-            last_of_block = _block_ends(store.specs)
-            bar = _progress_bar(len(store.specs), resumed, progress, backend, runner.workers)
             try:
-                for outcome in runner.run(pending):
-                    store.record(outcome.spec, outcome.row, outcome.log)
-                    ran += 1
-                    bar.update(1)
-                    if ran % EXPORT_EVERY == 0:
-                        store.export()
-                    if on_episode is not None:
-                        on_episode(outcome.spec, outcome.row)
-                    block = (outcome.spec.participant, outcome.spec.strategy)
-                    if (
-                        between_strategies is not None
-                        and outcome.spec.key in last_of_block
-                        and (answered is None or not answered(*block))
-                    ):
-                        bar.clear()
-                        between_strategies(*block)
+                ran = _run_pending(store, runner, pending, resumed, progress, backend, on_episode,
+                                   between_strategies, answered)  # fmt: skip
             finally:
-                bar.close()
                 runner.close()
                 store.export()
         store.export(sort_csv=store.complete)
@@ -126,6 +101,61 @@ def run_study(
         )  # fmt: skip
     finally:
         store.close()
+
+
+def _check_arguments(
+    backend: str,
+    workers: int | None,
+    max_episodes: int | None,
+    between_strategies: Callable[[int, str], None] | None,
+) -> None:
+    """Refuses run_study arguments that cannot work, with a typed error naming the argument."""
+    if max_episodes is not None and max_episodes < 0:
+        raise InvalidParameterError(f"max_episodes must be >= 0, got {max_episodes}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise InvalidParameterError(
+            f"workers must be an integer >= 1 (leave it out for the CPUs available), got {workers!r}"
+        )
+    if between_strategies is not None and backend != "serial":
+        raise InvalidParameterError("between_strategies (the questionnaire) needs backend='serial'")
+    check_backend(backend)
+
+
+def _run_pending(
+    store: ResultStore,
+    runner: Backend,
+    pending: list[EpisodeSpec],
+    resumed: int,
+    progress: bool,
+    backend: str,
+    on_episode: Callable[[EpisodeSpec, dict[str, Any]], None] | None,
+    between_strategies: Callable[[int, str], None] | None,
+    answered: Callable[[int, str], bool] | None,
+) -> int:
+    """Runs `pending` on `runner`, recording each outcome as it arrives; returns how many ran."""
+    ran = 0
+    last_of_block = _block_ends(store.specs)
+    bar = _progress_bar(len(store.specs), resumed, progress, backend, runner.workers)
+    try:
+        for outcome in runner.run(pending):
+            store.record(outcome.spec, outcome.row, outcome.log)
+            ran += 1
+            bar.update(1)
+            if ran % EXPORT_EVERY == 0:
+                store.export()
+            if on_episode is not None:
+                on_episode(outcome.spec, outcome.row)
+            block = (outcome.spec.participant, outcome.spec.strategy)
+            if (
+                between_strategies is not None
+                and outcome.spec.key in last_of_block
+                and (answered is None or not answered(*block))
+            ):
+                bar.clear()
+                between_strategies(*block)
+    finally:
+        bar.close()
+    return ran
 
 
 def _finished_blocks(store: ResultStore) -> list[tuple[int, str]]:

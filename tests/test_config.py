@@ -397,6 +397,18 @@ def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
             "key 'feature_frame' must be a frame of j2s7s300",
         ),
         ("[scene.laptop]", "[scene.person]", "not valid TOML"),  # a name twice
+        ('keep_out = "person"', "keep_out = 3", "key 'features.human.keep_out' must be a string, got 3"),
+        (
+            "position = [0.0, 0.2, 0.7484]",
+            "position = [0.0, 0.2]",
+            "key 'scene.person.position' must be a list of 3 finite numbers, got [0.0, 0.2]",
+        ),
+        (
+            'task_feature = "human"',
+            'task_feature = "human"\nfeature_frame = "j2s7s300_link7"',
+            "key 'feature_frame' must be a frame of j2s7s300, got 'j2s7s300_link7'; "
+            "did you mean 'j2s7s300_link_7'?",
+        ),
     ],
 )
 def test_bad_scene_and_feature_parameters_name_the_file_and_key(tmp_path, old, new, message) -> None:

@@ -20,10 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from phri import exceptions
 from phri._phri import FEATURE_NAMES, FEATURE_PARAMETERS, Features, Robot, Scene, SceneObject
 from phri._validate import Reader, did_you_mean, is_integer
-from phri.exceptions import ConfigError, UnknownNameError
+from phri.exceptions import ConfigError, PhriError, UnknownNameError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -198,9 +197,10 @@ def _scene(r: Reader) -> Scene:
                 kwargs[key] = o.number(key, positive=True)
         if "margin" in spec:
             kwargs["margin"] = o.number("margin")
+        position = o.vector("position", 3)
         try:
-            objects.append(SceneObject(name, shape, o.vector("position", 3), **kwargs))
-        except exceptions.PhriError as e:  # what a shape needs, and value ranges: the core's checks
+            objects.append(SceneObject(name, shape, position, **kwargs))
+        except PhriError as e:  # what a shape needs, and value ranges: the core's checks
             raise ConfigError(f"{r.source}: key 'scene.{name}': {e}") from None
     return Scene(objects)
 
@@ -236,13 +236,11 @@ def _feature(r: Reader, name: str, table: Any, scene: Scene) -> FeatureSpec:
     if step < 0:
         raise f.fail("step", "a number >= 0", step)
     if "keep_out" in parameters:
-        for key in ("keep_out", "radius"):
-            f.get(key)  # a keep-out feature needs both: a missing one is named here
-        if table["keep_out"] not in scene:
-            objects = ", ".join(scene.names)
-            raise f.fail(
-                "keep_out", f"the name of an object of the task's [scene] ({objects})", table["keep_out"]
-            )
+        f.get("radius")  # a keep-out feature needs both: a missing one is named here
+        keep_out = f.string("keep_out")
+        if keep_out not in scene:
+            objects = f"({', '.join(scene.names)})" if len(scene) else "(it has none)"
+            raise f.fail("keep_out", f"the name of an object of the task's [scene] {objects}", keep_out)
     params = {key: _PARAMETER_READERS[key](f, key) for key in parameters if key in table}
     return FeatureSpec(name, initial, true, step, lower, upper, learned, params)
 
@@ -268,8 +266,8 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     feature_frame = r.optional_string("feature_frame")
     robot = _robot()
     if feature_frame is not None and feature_frame not in robot.frame_names:
-        hint = did_you_mean(feature_frame, robot.frame_names)
-        raise r.fail("feature_frame", f"a frame of {robot.name}{hint}", feature_frame)
+        error = r.fail("feature_frame", f"a frame of {robot.name}", feature_frame)
+        raise ConfigError(f"{error}{did_you_mean(feature_frame, robot.frame_names)}")
     task = Task(
         name=r.string("name"),
         title=r.string("title", ""),
@@ -285,7 +283,7 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     )
     try:  # the core's remaining checks (e.g. at most MAX_SAMPLES samples), named by the file
         task.feature_set(robot)
-    except exceptions.PhriError as e:
+    except PhriError as e:
         raise ConfigError(f"{source}: {e}") from None
     return task
 

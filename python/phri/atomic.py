@@ -38,7 +38,8 @@ def write_atomic(path: str | Path, data: bytes, *, overwrite: bool = True) -> Pa
     """Writes `data` to `path` atomically and durably; returns `path`.
 
     With `overwrite` False an existing `path` is a :class:`FileExistsError` and nothing is written
-    (for files that are written once, such as episode logs; the caller is the folder's only writer)."""
+    (for files that are written once, such as episode logs): the temporary file is hard-linked to
+    `path`, which fails rather than replace a file that appeared meanwhile."""
     path = Path(path)
     if not overwrite and path.exists():
         raise FileExistsError(f"{path} exists; phri never overwrites it")
@@ -48,9 +49,26 @@ def write_atomic(path: str | Path, data: bytes, *, overwrite: bool = True) -> Pa
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            _link_new(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     _fsync_folder(path.parent)
     return path
+
+
+def _link_new(tmp: Path, path: Path) -> None:
+    """Gives `tmp` the name `path` only if no file has it (atomically where hard links exist)."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise FileExistsError(f"{path} exists; phri never overwrites it") from None
+    except OSError:  # a file system without hard links: the caller is the folder's only writer
+        if path.exists():
+            raise FileExistsError(f"{path} exists; phri never overwrites it") from None
+        os.replace(tmp, path)
+        return
+    tmp.unlink()

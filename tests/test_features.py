@@ -193,6 +193,43 @@ def test_the_default_frame_is_the_robots_feature_frame(jaco2):
     assert phri.Features(bare, ["table"], frame=LINK_7).frame == LINK_7
 
 
+def test_robot_descriptions_name_their_file_in_errors(tmp_path):
+    import importlib.resources
+
+    shipped = importlib.resources.files("phri").joinpath("robots/jaco2")
+    (tmp_path / "arm.urdf").write_text(shipped.joinpath("j2s7s300.urdf").read_text())
+    text = shipped.joinpath("robot.toml").read_text()
+    description = tmp_path / "robot.toml"
+    description.write_text(text.replace('urdf = "j2s7s300.urdf"', 'urdf = "arm.urdf"'))
+    assert phri.Robot.from_description(tmp_path).feature_frame == LINK_7  # a folder holding robot.toml
+    assert phri.Robot.from_description(description).feature_frame == LINK_7
+    cases = [
+        (
+            text.replace('urdf = "j2s7s300.urdf"', 'urdf = "missing.urdf"'),
+            ex.ConfigError,
+            "key 'urdf': cannot read",
+        ),
+        (text.replace('"j2s7s300_link_7"', '"link_77"'), ex.UnknownNameError, "key 'feature_frame': "),
+    ]
+    for body, error, message in cases:
+        description.write_text(body.replace('urdf = "j2s7s300.urdf"', 'urdf = "arm.urdf"'))
+        with pytest.raises(error, match="^" + re.escape(f"{description}: ") + ".*" + re.escape(message)):
+            phri.Robot.from_description(description)
+    description.write_bytes(b'urdf = "\xff"')
+    with pytest.raises(ex.ConfigError, match="not valid TOML"):
+        phri.Robot.from_description(description)
+
+
+def test_a_scene_iterates_and_answers_membership_like_a_mapping():
+    scene = phri.load_task("laptop").scene
+    assert list(scene) == scene.names == ["table", "laptop", "person"]
+    assert "laptop" in scene and "sofa" not in scene and 3 not in scene and None not in scene
+    with pytest.raises(
+        ex.UnknownNameError, match="unknown scene object 'sofa'; known: table, laptop, person"
+    ):
+        scene["sofa"]
+
+
 def jaco2_urdf() -> str:
     import importlib.resources
 

@@ -187,14 +187,19 @@ impl PyLearnerHistory {
     fn new(py: Python<'_>, history: &History, n: usize, k: usize) -> PyResult<Self> {
         let records = &history.interactions;
         let m = records.len();
-        let rows = |width: usize, row: &dyn Fn(&Interaction) -> &[f64]| -> PyResult<Py<PyArray2<f64>>> {
+        // Only ΔΦ may be missing from a record (no deformation was made): NaN marks it there.
+        let rows = |width: usize, row: &dyn Fn(&Interaction) -> &[f64], may_be_empty: bool| -> PyResult<Py<PyArray2<f64>>> {
             let mut values = Vec::with_capacity(m * width);
             for r in records {
-                let v = row(r);
-                if v.len() == width {
-                    values.extend_from_slice(v);
-                } else {
-                    values.extend(std::iter::repeat_n(f64::NAN, width));
+                match row(r) {
+                    v if v.len() == width => values.extend_from_slice(v),
+                    v if v.is_empty() && may_be_empty => values.extend(std::iter::repeat_n(f64::NAN, width)),
+                    v => {
+                        return Err(error(
+                            Kind::Shape,
+                            format!("a history record has {} values where {width} were expected", v.len()),
+                        ))
+                    }
                 }
             }
             Ok(PyArray1::from_vec(py, values).reshape([m, width])?.unbind())
@@ -204,9 +209,9 @@ impl PyLearnerHistory {
         let plan_values: Vec<f64> = plans.iter().flat_map(|(_, w)| w.iter().copied()).collect();
         Ok(PyLearnerHistory {
             t: PyArray1::from_iter(py, records.iter().map(|r| r.t)).unbind(),
-            u_h: rows(n, &|r| &r.u_h)?,
-            delta_phi: rows(k, &|r| &r.delta_phi)?,
-            weights: rows(k, &|r| &r.weights)?,
+            u_h: rows(n, &|r| &r.u_h, false)?,
+            delta_phi: rows(k, &|r| &r.delta_phi, true)?,
+            weights: rows(k, &|r| &r.weights, false)?,
             moved: PyArray1::from_iter(py, records.iter().map(|r| r.moved)).unbind(),
             updates: records.iter().map(|r| r.update.map(PyUpdateInfo::from)).collect(),
             replans: records.iter().map(|r| r.replan.map(PyTrajoptInfo::from)).collect(),

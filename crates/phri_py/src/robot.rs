@@ -9,7 +9,7 @@ use phri_core::{FrameId, RobotData, RobotModel};
 use pyo3::prelude::*;
 
 use crate::arrays::{rows, same_batch, vector, ArrayIn, Rows};
-use crate::errors::IntoPy;
+use crate::errors::{error, IntoPy, Kind};
 
 /// A serial-chain robot (kinematics and rigid-body dynamics), read from a URDF.
 #[pyclass(name = "Robot", module = "phri._phri")]
@@ -100,14 +100,16 @@ impl PyRobot {
         let d = py.import("phri.robots")?.call_method1("load", (name_or_path,))?;
         let text: String = d.call_method0("urdf_text")?.extract()?;
         let (base, tip): (String, String) = (d.getattr("base")?.extract()?, d.getattr("tip")?.extract()?);
-        let model = RobotModel::from_urdf_str(&text, Some(&base), Some(&tip)).py_err()?;
+        let source: String = d.getattr("source")?.extract()?;
+        let model =
+            RobotModel::from_urdf_str(&text, Some(&base), Some(&tip)).map_err(|e| error(Kind::Urdf, format!("{source}: {e}")))?;
         let mut frames = RobotFrames::default();
         for (key, slot) in
             [("feature_frame", &mut frames.feature), ("hand_frame", &mut frames.hand), ("cup_frame", &mut frames.cup)]
         {
             let name: Option<String> = d.getattr(key)?.extract()?;
             if let Some(n) = &name {
-                model.frame_id(n).py_err()?;
+                model.frame_id(n).map_err(|e| error(Kind::UnknownName, format!("{source}: key '{key}': {e}")))?;
             }
             *slot = name;
         }

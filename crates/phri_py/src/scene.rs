@@ -256,7 +256,7 @@ impl PyScene {
     /// The object named `name` (UnknownNameError listing the scene's objects otherwise).
     fn __getitem__(&self, name: &str) -> PyResult<PySceneObject> {
         self.scene.require("name", name).py_err()?;
-        Ok(self.objects.iter().find(|o| o.object.name() == name).expect("found above").clone())
+        self.get(name).ok_or_else(|| error(Kind::UnknownName, format!("name: unknown object '{name}'")))
     }
 
     /// The object named `name`, or None.
@@ -264,8 +264,14 @@ impl PyScene {
         self.objects.iter().find(|o| o.object.name() == name).cloned()
     }
 
-    fn __contains__(&self, name: &str) -> bool {
-        self.scene.get(name).is_some()
+    /// Whether the scene has an object named `name` (False for anything but a string).
+    fn __contains__(&self, name: &Bound<'_, PyAny>) -> bool {
+        name.extract::<&str>().is_ok_and(|n| self.scene.get(n).is_some())
+    }
+
+    /// The objects' names, in the scene's order.
+    fn __iter__(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+        Ok(pyo3::types::PyList::new(py, self.names())?.into_any().try_iter()?.into_any().unbind())
     }
 
     fn __len__(&self) -> usize {

@@ -13,6 +13,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from phri._validate import Reader
 from phri.exceptions import ConfigError
 
 if sys.version_info >= (3, 11):
@@ -39,23 +40,27 @@ class RobotDescription:
     cup_frame: str | None = None
 
     def urdf_text(self) -> str:
-        return self.urdf.read_text(encoding="utf-8")
+        """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
+        try:
+            return self.urdf.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as e:
+            raise ConfigError(f"{self.source}: key 'urdf': cannot read {self.urdf} ({e})") from None
 
 
 def load(name_or_path: str | Path) -> RobotDescription:
     """A shipped robot's description by name (``"jaco2"``) or a ``robot.toml`` by path."""
     path = Path(name_or_path)
-    if path.suffix != ".toml":
+    if path.is_dir():
+        path = path / "robot.toml"
+    elif path.suffix != ".toml":
         path = Path(str(resources.files("phri").joinpath("robots", str(name_or_path), "robot.toml")))
     if not path.is_file():
         raise ConfigError(f"{path}: robot description not found")
     source = str(path)
     try:
         data: dict[str, Any] = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as e:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise ConfigError(f"{source}: not valid TOML ({e})") from None
-    from phri._validate import Reader
-
     r = Reader(source, data, allowed=DESCRIPTION_KEYS)
     frames = {key: r.optional_string(key) for key in ("feature_frame", "hand_frame", "cup_frame")}
     return RobotDescription(

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from phri._phri import Scene
+from phri.exceptions import InvalidParameterError
 from phri.plots import REPORT_PATHS, STUDY_COLORS, pyplot
 from phri.plots import plot_paths as plot_path_figure
 
@@ -124,16 +125,18 @@ def plot_cost(
     return path
 
 
-def read_paths(log: str | Path) -> dict[str, np.ndarray]:
-    """From an episode log: time `t` [s], the executed link_7 path at the log rate, and the desired
-    plan's link_7 path sampled at the same times (cubic interpolation of its waypoints), each (N, 3) [m]."""
+def read_paths(log: str | Path, frame: str | None = None) -> dict[str, np.ndarray]:
+    """From an episode log: time `t` [s], the executed path of `frame` (the task's feature frame;
+    None: the JACO2's) at the log rate, and the desired plan's path sampled at the same times (cubic
+    interpolation of its waypoints), each (N, 3) [m]."""
     from phri._phri import Robot, TimedTrajectory
 
     with np.load(log) as data:
         t, q, desired = data["t"], data["q"], data["desired"]
     robot = Robot.jaco2()
-    cup = robot.feature_frame
-    assert cup is not None, "the JACO2's description names its feature frame"
+    cup = frame or robot.feature_frame
+    if cup is None:
+        raise InvalidParameterError("frame: the robot's description names no feature frame; pass one")
     duration = float(t[-1]) if len(t) > 1 else 1.0
     plan = TimedTrajectory(desired, duration)
     q_desired = plan.sample_many(t)[0]
@@ -152,12 +155,14 @@ def plot_paths(
     task: str = "",
     title: str = "",
     keep_out: tuple[tuple[float, float], float] | None = None,
+    frame: str | None = None,
 ) -> Path:
-    """Fig. 5 (right): the cup's (link_7) path for each strategy against the desired path — seen
-    from above (x, y) and its height over time. `logs` maps a strategy to its episode log; the desired
-    path is that of the first log; `scene`'s laptop and table top and the task's `keep_out` circle
-    (centre, radius [m]) are drawn if given."""
-    paths = {strategy: read_paths(log) for strategy, log in logs.items()}
+    """Fig. 5 (right): the path of the cup (the task's feature frame `frame`, see
+    :func:`read_paths`) for each strategy against the desired path, seen from above (x, y) and its
+    height over time. `logs` maps a strategy to its episode log; the desired path is that of the first
+    log; `scene`'s laptop and table top and the task's `keep_out` circle (centre, radius [m]) are
+    drawn if given."""
+    paths = {strategy: read_paths(log, frame) for strategy, log in logs.items()}
     first = next(iter(paths.values()))
     return plot_path_figure(
         path, (first["t"], first["desired"]), {s: (p["t"], p["executed"]) for s, p in paths.items()},

@@ -352,6 +352,7 @@ def _figures(
     shown = config.load_tasks()[t]
     fig_paths = figures.plot_paths(
         logs, out / "fig5_paths.png", scene=shown.scene, task=t, keep_out=shown.keep_out_circle(t),
+        frame=shown.feature_frame,
         title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
     )  # fmt: skip
     return lines + [

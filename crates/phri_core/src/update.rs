@@ -32,8 +32,11 @@ impl UpdateRule {
 
     /// The rule's name.
     pub fn name(self) -> &'static str {
-        let i = UpdateRule::ALL.iter().position(|r| *r == self).unwrap_or(0);
-        UpdateRule::NAMES[i]
+        match self {
+            UpdateRule::All => UpdateRule::NAMES[0],
+            UpdateRule::Max => UpdateRule::NAMES[1],
+            UpdateRule::Confidence => UpdateRule::NAMES[2],
+        }
     }
 
     /// The rule named `name`, or an InvalidParameter error naming `arg` and the known rules.

@@ -4,8 +4,8 @@ mod common;
 
 use std::sync::Arc;
 
-use common::{deg, jaco2};
 use common::study::study_features;
+use common::{deg, jaco2};
 use phri_core::features::FeatureSet;
 use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
 use phri_core::PhriError;

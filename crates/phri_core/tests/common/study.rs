@@ -62,8 +62,8 @@ fn object(name: &str, t: &Table) -> SceneObject {
 pub fn task_scene(task: &str) -> Scene {
     let doc = task_file(task);
     let scene = doc.get("scene").and_then(Item::as_table).unwrap_or_else(|| panic!("task '{task}' has no [scene]"));
-    Scene::new(scene.iter().map(|(name, item)| object(name, item.as_table().expect("a [scene.<name>] table"))).collect())
-        .unwrap()
+    let objects = scene.iter().map(|(name, item)| object(name, item.as_table().expect("a [scene.<name>] table")));
+    Scene::new(objects.collect()).unwrap()
 }
 
 /// The study's scene: the one every task file describes (checked).

@@ -18,8 +18,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use criterion::{criterion_group, BenchmarkId, Criterion, Throughput};
+use phri_benches::study;
 use phri_benches::{deg, jaco2, place_lower};
-use phri_core::features::{FeatureSet, SceneParams};
+use phri_core::features::FeatureSet;
 use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
 use phri_core::reference::{Interpolation, TimedTrajectory};
 use phri_core::RobotModel;
@@ -48,7 +49,7 @@ fn keepout_trajectory() -> Vec<f64> {
 
 fn study_features(model: &Arc<RobotModel>) -> FeatureSet {
     let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
-    FeatureSet::from_names(model.clone(), link_7, &STUDY_FEATURES, &SceneParams::default()).expect("built-in features")
+    study::study_features(model.clone(), link_7, &STUDY_FEATURES)
 }
 
 fn features(c: &mut Criterion) {
@@ -75,7 +76,7 @@ fn features(c: &mut Criterion) {
     // kinematics), the others only the segment's end (1).
     let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
     let names = ["efficiency", "table", "coffee"];
-    let mut end_only = FeatureSet::from_names(model.clone(), link_7, &names, &SceneParams::default()).expect("features");
+    let mut end_only = study::study_features(model.clone(), link_7, &names);
     let mut phi3 = [0.0; 3];
     group.bench_function("phi_without_keepouts", |b| b.iter(|| end_only.phi(black_box(&xi), &mut phi3).expect("valid")));
     group.finish();

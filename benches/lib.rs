@@ -4,12 +4,18 @@ use std::sync::Arc;
 
 use nalgebra::{Matrix6xX, Vector3, Vector6};
 use phri_core::deform::{DeformParams, Deformation};
-use phri_core::features::{FeatureSet, SceneParams};
+use phri_core::features::FeatureSet;
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
 use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
 use phri_core::update::{UpdateParams, UpdateRule, WeightUpdate};
 use phri_core::RobotModel;
+
+/// The study's scene and feature parameters, read from the shipped task files (the same helper
+/// phri_core's integration tests use).
+#[path = "../crates/phri_core/tests/common/study.rs"]
+pub mod study;
+use study::{away_from_keepout, study_features, table_top};
 
 /// The shipped JACO2 description (the same file the Python package loads).
 pub const JACO2_URDF: &str = include_str!("../python/phri/robots/jaco2/j2s7s300.urdf");
@@ -69,8 +75,6 @@ pub fn study_tasks() -> [StudyTask; 4] {
 
 /// Task duration T [s].
 pub const DURATION: f64 = 15.0;
-/// The table top's height in the base frame [m].
-pub const TABLE_TOP: f64 = -0.1016;
 /// The study planner's tool-point clearance above the table top [m] (python/phri/sim/episode.py).
 pub const HAND_CLEARANCE: f64 = 0.1016;
 /// The study planner's link_7 clearance above the table top [m].
@@ -112,13 +116,13 @@ fn planner(
 ) -> (FeatureSet, TrajectoryOptimizer) {
     let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
     let hand = model.frame_id("j2s7s300_end_effector").expect("tool point exists");
-    let features = FeatureSet::from_names(model.clone(), link_7, &["efficiency", task.name], &SceneParams::default())
-        .expect("built-in features");
+    let features = study_features(model.clone(), link_7, &["efficiency", task.name]);
+    let table_top = table_top();
     let spacing = DURATION / (waypoints - 1) as f64;
     let params = TrajoptParams {
         clearance: vec![
-            Clearance { frame: hand, min_z: TABLE_TOP + HAND_CLEARANCE, weight: clearance_weight },
-            Clearance { frame: link_7, min_z: TABLE_TOP + CUP_CLEARANCE, weight: clearance_weight },
+            Clearance { frame: hand, min_z: table_top + HAND_CLEARANCE, weight: clearance_weight },
+            Clearance { frame: link_7, min_z: table_top + CUP_CLEARANCE, weight: clearance_weight },
         ],
         max_step: model.velocity_limits().iter().map(|v| VELOCITY_MARGIN * v * spacing).collect(),
         ..Default::default()
@@ -166,8 +170,7 @@ pub fn corrective_push(model: &RobotModel, learner: &Learner, task: &StudyTask, 
             let x: Vector3<f64> = pose.rotation.matrix().column(0).into();
             (Vector3::zeros(), x.cross(&Vector3::z()).normalize() * 4.0)
         }
-        "laptop" => (Vector3::new(p.x + 0.7929, p.y + 0.1, 0.0).normalize() * 25.0, Vector3::zeros()),
-        _ => (Vector3::new(p.x, p.y - 0.2, 0.0).normalize() * 25.0, Vector3::zeros()),
+        _ => (away_from_keepout(task.name, &p) * 25.0, Vector3::zeros()),
     };
     let mut jacobian = Matrix6xX::zeros(7);
     model.frame_jacobian(hand, &data, &mut jacobian).expect("7 columns");

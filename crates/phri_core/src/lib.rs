@@ -13,7 +13,6 @@ pub mod data;
 pub mod deform;
 pub mod dynamics;
 pub mod error;
-pub mod feature_specs;
 pub mod features;
 pub mod impedance;
 pub mod interaction;

@@ -9,7 +9,6 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
 use phri_core::deform::{DeformParams, Deformation};
-use phri_core::features::{FeatureSet, SceneParams};
 use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
@@ -53,7 +52,7 @@ static GLOBAL: Counting = Counting;
 fn learner() -> Learner {
     let model = Arc::new(common::jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
-    let fs = FeatureSet::from_names(model, frame, &["efficiency", "table"], &SceneParams::default()).unwrap();
+    let fs = common::study::study_features(model, frame, &["efficiency", "table"]);
     let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
     let update = WeightUpdate::new(UpdateParams {
         step: vec![0.0, 2.0],

@@ -4,15 +4,17 @@ mod common;
 
 use std::sync::Arc;
 
+use common::study::{feature_spec, keepout_circle, study_features};
 use common::{deg, jaco2, within_limits};
-use phri_core::features::{FeatureSet, SceneParams, SegmentHessian, BUILTIN_FEATURES};
+use phri_core::features::{FeatureParams, FeatureSet, FeatureSpec, SegmentHessian, BUILTIN_FEATURES};
+use phri_core::scene::Scene;
 use phri_core::trajopt::block_tridiagonal::BlockTridiagonal;
 use proptest::prelude::*;
 
 fn feature_set(names: &[&str]) -> FeatureSet {
     let model = Arc::new(jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
-    FeatureSet::from_names(model, frame, names, &SceneParams::default()).unwrap()
+    study_features(model, frame, names)
 }
 
 /// A trajectory of `waypoints` rows from `a` to `b` with a wiggle, row-major.
@@ -70,12 +72,19 @@ fn coffee_measures_the_tilt_of_link_7s_x_axis() {
 fn bad_feature_input_is_a_typed_error() {
     let model = Arc::new(jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
-    assert!(FeatureSet::from_names(model.clone(), frame, &["tabel"], &SceneParams::default()).is_err());
-    assert!(FeatureSet::from_names(model.clone(), frame, &["table", "table"], &SceneParams::default()).is_err());
-    let bad = SceneParams { laptop_radius: -1.0, ..Default::default() };
-    assert!(FeatureSet::from_names(model.clone(), frame, &["laptop"], &bad).is_err());
-    let bad = SceneParams { human_radius: f64::NAN, ..Default::default() };
-    assert!(FeatureSet::from_names(model, frame, &["human"], &bad).is_err());
+    let scene = common::study::study_scene();
+    let build = |specs: &[FeatureSpec]| FeatureSet::from_specs(model.clone(), frame, specs, Some(&scene));
+    assert!(build(&[FeatureSpec { name: "tabel".into(), params: FeatureParams::None }]).is_err());
+    assert!(build(&[feature_spec("table"), feature_spec("table")]).is_err());
+    for (name, radius) in [("laptop", -1.0), ("human", f64::NAN)] {
+        let mut bad = feature_spec(name);
+        match &mut bad.params {
+            FeatureParams::Keepout(k) => k.radius = radius,
+            other => panic!("{name} is a keep-out feature, got {other:?}"),
+        }
+        assert!(build(&[bad]).is_err());
+    }
+    assert!(FeatureSet::from_specs(model.clone(), frame, &[feature_spec("laptop")], Some(&Scene::empty())).is_err());
     let mut fs = feature_set(&["table"]);
     let mut phi = [0.0];
     assert!(fs.phi(&[0.0; 7], &mut phi).is_err(), "one waypoint is not a trajectory");
@@ -196,8 +205,8 @@ fn hinge_curvature_is_exact_inside_the_quadratic_zone() {
     let model = Arc::new(jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
     let delta = 0.2;
-    let scene = SceneParams { human_radius: 0.4, ..Default::default() };
-    let mut fs = FeatureSet::from_names(model.clone(), frame, &["human"], &scene).unwrap();
+    let mut fs = study_features(model.clone(), frame, &["human"]);
+    let (center, radius) = keepout_circle("human");
     let a = deg([210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8]);
     let b = deg([210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4]);
     // Find a blend of the two poses whose link_7 origin lies 5 cm inside the circle.
@@ -216,7 +225,7 @@ fn hinge_curvature_is_exact_inside_the_quadratic_zone() {
                 let q: Vec<f64> = (0..7).map(|j| xi[i * 7 + j] + s * (xi[(i + 1) * 7 + j] - xi[i * 7 + j])).collect();
                 model2.forward_kinematics(&q, &mut d).unwrap();
                 let p = model2.frame_pose(frame, &d).translation.vector;
-                deepest = deepest.max(0.4 - (p.x.powi(2) + (p.y - 0.2).powi(2)).sqrt());
+                deepest = deepest.max(radius - (p.xy() - center).norm());
             }
         }
         if deepest < 0.5 * delta {
@@ -245,7 +254,8 @@ fn the_keepout_skip_changes_nothing() {
     // per-segment keep-out counts with a direct evaluation of all samples.
     let model = Arc::new(jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
-    let mut fs = FeatureSet::from_names(model.clone(), frame, &["laptop", "human"], &SceneParams::default()).unwrap();
+    let mut fs = study_features(model.clone(), frame, &["laptop", "human"]);
+    let circles = [keepout_circle("laptop"), keepout_circle("human")];
     let mut data = model.data();
     let mut checked = 0;
     for seed in 0..40u64 {
@@ -254,14 +264,14 @@ fn the_keepout_skip_changes_nothing() {
         let mut per = vec![0.0; 8 * 2];
         fs.per_segment(&xi, &mut per).unwrap();
         for i in 1..9 {
-            for (f, c) in [(0, [-0.7929, -0.1]), (1, [0.0, 0.2])] {
+            for (f, (c, radius)) in circles.iter().enumerate() {
                 let mut expect = 0.0;
                 for k in 1..=4 {
                     let s = k as f64 / 4.0;
                     let q: Vec<f64> = (0..7).map(|j| xi[(i - 1) * 7 + j] + s * (xi[i * 7 + j] - xi[(i - 1) * 7 + j])).collect();
                     model.forward_kinematics(&q, &mut data).unwrap();
                     let p = model.frame_pose(frame, &data).translation.vector;
-                    expect += (0.4 - ((p.x - c[0]).powi(2) + (p.y - c[1]).powi(2)).sqrt()).max(0.0);
+                    expect += (radius - (p.xy() - c).norm()).max(0.0);
                 }
                 let got = per[(i - 1) * 2 + f];
                 assert!((got - expect).abs() < 1e-12, "seed {seed} segment {i} feature {f}: {got} vs {expect}");

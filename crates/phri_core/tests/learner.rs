@@ -4,10 +4,10 @@ mod common;
 
 use std::sync::Arc;
 
+use common::study::{away_from_keepout, study_features};
 use common::{deg, jaco2};
 use nalgebra::{Matrix6xX, Vector3};
 use phri_core::deform::{DeformParams, Deformation};
-use phri_core::features::{FeatureSet, SceneParams};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
 use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
@@ -34,7 +34,7 @@ fn learner_with(
     let model = Arc::new(jaco2());
     let l7 = model.frame_id("j2s7s300_link_7").unwrap();
     let ee = model.frame_id("j2s7s300_end_effector").unwrap();
-    let fs = FeatureSet::from_names(model, l7, &["efficiency", feature], &SceneParams::default()).unwrap();
+    let fs = study_features(model, l7, &["efficiency", feature]);
     let clearance = vec![Clearance { frame: ee, min_z: 0.0, weight: 1e3 }, Clearance { frame: l7, min_z: -0.04, weight: 1e3 }];
     let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { clearance, ..Default::default() }).unwrap();
     let update = WeightUpdate::new(UpdateParams {
@@ -109,8 +109,7 @@ fn scripted_pushes_move_each_task_weight_the_right_way() {
                         (Vector3::zeros(), x.cross(&Vector3::z()).normalize() * 4.0)
                     }
                     // Away from the keep-out centre, horizontally.
-                    "laptop" => (Vector3::new(p.x + 0.7929, p.y + 0.1, 0.0).normalize() * 25.0, Vector3::zeros()),
-                    _ => (Vector3::new(p.x, p.y - 0.2, 0.0).normalize() * 25.0, Vector3::zeros()),
+                    _ => (away_from_keepout(feature, &p) * 25.0, Vector3::zeros()),
                 };
                 let tau = push(&l, t, force, torque);
                 let obs = l.observe(t, &tau).unwrap();
@@ -164,7 +163,7 @@ fn a_replan_budget_spreads_the_replan_over_ticks_and_ends_on_the_same_plan() {
     assert_eq!(capped.plan().waypoints(), full.plan().waypoints(), "the initial plan converges either way");
     let t = 4.0;
     let p = hand(&full, t);
-    let tau = push(&full, t, Vector3::new(p.x + 0.7929, p.y + 0.1, 0.0).normalize() * 25.0, Vector3::zeros());
+    let tau = push(&full, t, away_from_keepout("laptop", &p) * 25.0, Vector3::zeros());
     assert!(full.observe(t, &tau).unwrap().replanned);
     let obs = capped.observe(t, &tau).unwrap();
     assert!(obs.replanned && capped.replan_pending(), "one push at weight 0 takes more than {budget} iterations");
@@ -204,7 +203,7 @@ fn seed_plans_shorten_the_replan_after_a_large_update() {
             "table" => Vector3::new(0.0, 0.0, -25.0),
             _ => {
                 let p = hand(&without, t);
-                Vector3::new(p.x + 0.7929, p.y + 0.1, 0.0).normalize() * 25.0
+                away_from_keepout(feature, &p) * 25.0
             }
         };
         let tau = push(&without, t, force, Vector3::zeros());
@@ -224,7 +223,7 @@ fn seed_settings_are_checked() {
         let params = LearnerParams { seeds, ..Default::default() };
         let model = Arc::new(jaco2());
         let l7 = model.frame_id("j2s7s300_link_7").unwrap();
-        let fs = FeatureSet::from_names(model, l7, &["efficiency", "table"], &SceneParams::default()).unwrap();
+        let fs = study_features(model, l7, &["efficiency", "table"]);
         let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
         let update = WeightUpdate::new(UpdateParams {
             step: vec![0.0, 2.0],

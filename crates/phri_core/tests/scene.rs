@@ -4,47 +4,15 @@ mod common;
 
 use std::sync::Arc;
 
+use common::study::{feature_spec, study_scene};
 use common::{deg, jaco2};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
-use phri_core::feature_specs::{feature_set, FeatureParams, FeatureSpec, KeepoutSpec};
-use phri_core::features::{FeatureSet, SceneParams};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
+use phri_core::features::{Feature, FeatureParams, FeatureSet, FeatureSpec, Keepout, KeepoutSpec};
 use phri_core::scene::{ObjectKind, Scene, SceneObject, Shape};
 use phri_core::PhriError;
 
 fn at(x: f64, y: f64, z: f64) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::new(x, y, z), UnitQuaternion::identity())
-}
-
-/// The study's scene as the shipped task files describe it.
-fn study_scene() -> Scene {
-    let top = -0.1016;
-    Scene::new(vec![
-        SceneObject::new(
-            "table",
-            Shape::Box { size: Vector3::new(0.81, 1.62, 0.04) },
-            at(-0.405, 0.0, -0.1216),
-            0.02,
-            ObjectKind::Furniture,
-        )
-        .unwrap(),
-        SceneObject::new(
-            "laptop",
-            Shape::Box { size: Vector3::new(0.23, 0.3, 0.025) },
-            at(-0.7929, 0.0, -0.0891),
-            0.02,
-            ObjectKind::Furniture,
-        )
-        .unwrap(),
-        SceneObject::new(
-            "person",
-            Shape::Cylinder { radius: 0.15, length: 1.7 },
-            at(0.0, 0.2, top + 0.85),
-            0.02,
-            ObjectKind::Person,
-        )
-        .unwrap(),
-    ])
-    .unwrap()
 }
 
 fn keepout(name: &str, object: &str, offset: [f64; 2]) -> FeatureSpec {
@@ -110,28 +78,35 @@ fn top_is_the_highest_point() {
 }
 
 #[test]
+fn the_task_files_give_the_authors_keepout_features() {
+    // The keep-out features of the authors' published code, written out here as the independent
+    // reference for what the task files give (the circles' values: the next test).
+    let expected = [("laptop", "laptop", [0.0, -0.1]), ("human", "person", [0.0, 0.0])];
+    for (name, object, offset) in expected {
+        assert_eq!(feature_spec(name), keepout(name, object, offset));
+    }
+}
+
+#[test]
 fn features_from_the_scene_match_the_authors_values() {
     let model = Arc::new(jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
     let names = ["efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin"];
-    let specs: Vec<FeatureSpec> = names
-        .iter()
-        .map(|&n| match n {
-            "laptop" => keepout("laptop", "laptop", [0.0, -0.1]),
-            "human" => keepout("human", "person", [0.0, 0.0]),
-            other => plain(other),
-        })
-        .collect();
-    let mut from_scene = feature_set(model.clone(), frame, &specs, Some(&study_scene())).unwrap();
-    let mut authors = FeatureSet::from_names(model, frame, &names, &SceneParams::default()).unwrap();
+    let specs: Vec<FeatureSpec> = names.iter().map(|&n| feature_spec(n)).collect();
+    let mut from_scene = FeatureSet::from_specs(model.clone(), frame, &specs, Some(&study_scene())).unwrap();
+    // The authors' circles, evaluated directly.
+    let circle = |name: &str, x: f64, y: f64| -> Box<dyn Feature> {
+        Box::new(Keepout { name: name.into(), center: Vector2::new(x, y), radius: 0.4, samples: 4 })
+    };
+    let mut authors = FeatureSet::new(model, frame, vec![circle("laptop", -0.7929, -0.1), circle("human", 0.0, 0.2)]).unwrap();
     let (a, b) =
         (deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]), deg([210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4]));
     let xi: Vec<f64> =
         (0..31).flat_map(|i| (0..7).map(move |j| (i, j))).map(|(i, j)| a[j] + (b[j] - a[j]) * i as f64 / 30.0).collect();
-    let (mut p, mut q) = (vec![0.0; 7], vec![0.0; 7]);
+    let (mut p, mut q) = (vec![0.0; 7], vec![0.0; 2]);
     from_scene.phi(&xi, &mut p).unwrap();
     authors.phi(&xi, &mut q).unwrap();
-    assert_eq!(p, q);
+    assert_eq!(p[4..6], q);
     assert!(p[4] > 0.0, "the path passes through the laptop circle: {p:?}");
 }
 
@@ -140,7 +115,7 @@ fn spec_errors_name_the_feature_and_parameter() {
     let model = Arc::new(jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
     let build = |specs: &[FeatureSpec], scene: Option<&Scene>| {
-        feature_set(model.clone(), frame, specs, scene).err().expect("an error").to_string()
+        FeatureSet::from_specs(model.clone(), frame, specs, scene).err().expect("an error").to_string()
     };
     let scene = study_scene();
     assert!(build(&[plain("table"), keepout("laptop", "laptop", [0.0, 0.0])], None).starts_with("scene is needed"));

@@ -4,8 +4,9 @@ mod common;
 
 use std::sync::Arc;
 
+use common::study::study_features;
 use common::{deg, jaco2};
-use phri_core::features::{FeatureSet, SceneParams};
+use phri_core::features::FeatureSet;
 use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
 use phri_core::PhriError;
 
@@ -32,7 +33,7 @@ fn setup(feature: &str) -> (FeatureSet, TrajectoryOptimizer) {
     let model = Arc::new(jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
     let ee = model.frame_id("j2s7s300_end_effector").unwrap();
-    let fs = FeatureSet::from_names(model, frame, &["efficiency", feature], &SceneParams::default()).unwrap();
+    let fs = study_features(model, frame, &["efficiency", feature]);
     let l7 = model_frame(&fs, "j2s7s300_link_7");
     let params = TrajoptParams {
         clearance: vec![
@@ -103,7 +104,7 @@ fn study_setup(feature: &str, waypoints: usize) -> (FeatureSet, TrajectoryOptimi
     let model = Arc::new(jaco2());
     let l7 = model.frame_id("j2s7s300_link_7").unwrap();
     let ee = model.frame_id("j2s7s300_end_effector").unwrap();
-    let fs = FeatureSet::from_names(model.clone(), l7, &["efficiency", feature], &SceneParams::default()).unwrap();
+    let fs = study_features(model.clone(), l7, &["efficiency", feature]);
     let spacing = 15.0 / (waypoints - 1) as f64;
     let params = TrajoptParams {
         clearance: vec![

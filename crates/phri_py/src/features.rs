@@ -1,8 +1,9 @@
 //! `phri.Features`: trajectory feature counts Φ(ξ) and their gradients, one native call per trajectory.
 
 use numpy::{PyArray1, PyArrayDyn, PyArrayMethods};
-use phri_core::feature_specs::{feature_parameters, feature_set, FeatureParams, FeatureSpec, KeepoutSpec, DEFAULT_SAMPLES};
-use phri_core::features::{FeatureSet, BUILTIN_FEATURES};
+use phri_core::features::{
+    feature_parameters, FeatureParams, FeatureSet, FeatureSpec, KeepoutSpec, BUILTIN_FEATURES, DEFAULT_SAMPLES,
+};
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyMapping, PyString, PyTuple};
@@ -157,7 +158,7 @@ impl PyFeatures {
         let model = robot.model.clone();
         let frame_id = model.frame_id(&frame).py_err()?;
         let n = model.nq();
-        let mut set = feature_set(model, frame_id, &specs, scene.as_ref().map(|s| &s.scene)).py_err()?;
+        let mut set = FeatureSet::from_specs(model, frame_id, &specs, scene.as_ref().map(|s| &s.scene)).py_err()?;
         if let Some(r) = &ranges {
             set.set_ranges(Some(&*vector("ranges", r, set.len())?)).py_err()?;
         }

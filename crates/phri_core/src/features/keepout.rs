@@ -79,15 +79,6 @@ pub struct Keepout {
     pub samples: usize,
 }
 
-impl Keepout {
-    pub fn laptop() -> Self {
-        Keepout { name: "laptop".into(), center: Vector2::new(-0.7929, -0.1), radius: 0.4, samples: 4 }
-    }
-    pub fn human() -> Self {
-        Keepout { name: "human".into(), center: Vector2::new(0.0, 0.2), radius: 0.4, samples: 4 }
-    }
-}
-
 impl Feature for Keepout {
     fn name(&self) -> &str {
         &self.name

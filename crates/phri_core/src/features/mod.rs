@@ -11,7 +11,8 @@
 //! then learns its curvature more slowly). Ask the [`Segment`] for the kinematics of any point along
 //! it (`seg.point(s)`, `seg.jacobian(s)` for s ∈ [0, 1]); they are computed once per evaluation
 //! (the end points once per waypoint, shared by the two segments that meet there) and shared by all
-//! features. Then pass `Box::new(YourFeature)` to [`FeatureSet::new`].
+//! features. Then pass `Box::new(YourFeature)` to [`FeatureSet::new`]; the built-in features come
+//! from their specifications through [`FeatureSet::from_specs`].
 
 mod builtin;
 mod efficiency;
@@ -23,7 +24,7 @@ mod segment;
 
 use std::sync::Arc;
 
-pub use builtin::{builtin, SceneParams, BUILTIN_FEATURES, MAX_SAMPLES};
+pub use builtin::{feature_parameters, FeatureParams, FeatureSpec, KeepoutSpec, BUILTIN_FEATURES, DEFAULT_SAMPLES, MAX_SAMPLES};
 pub use efficiency::Efficiency;
 pub use keepout::{huber, smooth_hinge, Keepout};
 pub use orientation::{Coffee, CoffeeForm};
@@ -35,6 +36,7 @@ pub use segment::{Point, Segment, SegmentGrad};
 use crate::data::RobotData;
 use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::model::{FrameId, RobotModel};
+use crate::scene::Scene;
 
 /// Lets a `Box<dyn Feature>` be cloned; implemented for every `Feature + Clone` automatically.
 pub trait FeatureClone {
@@ -108,9 +110,11 @@ impl FeatureSet {
         Ok(FeatureSet { inv_range: vec![1.0; features.len()], features, ws, hessian: SegmentHessian::new(nq) })
     }
 
-    /// Built-in features by name (see [`BUILTIN_FEATURES`]).
-    pub fn from_names(model: Arc<RobotModel>, frame: FrameId, names: &[&str], scene: &SceneParams) -> Result<Self> {
-        let features = names.iter().map(|n| builtin(n, scene)).collect::<Result<Vec<_>>>()?;
+    /// The built-in features of `specs` (see [`FeatureSpec`]), in order, evaluated at `frame`;
+    /// keep-out features are placed by `scene` (errors name "features[i]").
+    pub fn from_specs(model: Arc<RobotModel>, frame: FrameId, specs: &[FeatureSpec], scene: Option<&Scene>) -> Result<Self> {
+        let features =
+            specs.iter().enumerate().map(|(i, s)| s.build(&format!("features[{i}]"), scene)).collect::<Result<Vec<_>>>()?;
         Self::new(model, frame, features)
     }
 

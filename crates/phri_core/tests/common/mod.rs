@@ -3,6 +3,8 @@
 
 use phri_core::RobotModel;
 
+pub mod study;
+
 pub const JACO2_URDF: &str = include_str!("../../../../python/phri/robots/jaco2/j2s7s300.urdf");
 
 pub fn jaco2() -> RobotModel {

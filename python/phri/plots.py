@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from phri._phri import Scene
+from phri.config import TABLE
 
 __all__ = [
     "DEMO_COLORS",
@@ -167,7 +168,7 @@ def _draw_scene(
                      va="top", fontsize=9, color="red")  # fmt: skip
     if scene is None:
         return
-    laptop, table = scene.get("laptop"), scene.get("table")
+    laptop, table = scene.get("laptop"), scene.get(TABLE)
     if task == "laptop" and laptop is not None and laptop.size is not None:
         (lx, ly, _), (sx, sy, _) = laptop.position, laptop.size
         top.add_patch(patches.Rectangle((lx - sx / 2, ly - sy / 2), sx, sy, color="0.2", alpha=0.6))

@@ -984,3 +984,23 @@ def test_a_failed_episode_hands_back_its_log_so_far(monkeypatch: pytest.MonkeyPa
     assert "non-finite" in outcome.row["error"] and f"(log so far: logs/{name})" in outcome.row["error"]
     with np.load(io.BytesIO(outcome.log)) as log:
         assert 15 <= len(log["t"]) <= 21
+
+
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [
+        ("position = [-0.7929, 0.0, -0.0891]", "position = [-0.7929, 0.01, -0.0891]"),  # laptop moved
+        ("size = [0.23, 0.3, 0.025]", "size = [0.23, 0.3, 0.025]\nmargin = 0.05"),
+        ("size = [0.23, 0.3, 0.025]", "size = [0.23, 0.3, 0.025]\nrpy = [0.0, 0.0, 1e-9]"),
+        ('kind = "person"', 'kind = "furniture"'),
+        ("radius = 0.4 ", "radius = 0.41 "),
+    ],
+)
+def test_a_task_files_digest_covers_its_scene_and_features(tmp_path: Path, old: str, new: str) -> None:
+    config, task_file = study_with_a_task_file(tmp_path)
+    before = config.task_digests()
+    text = task_file.read_text()
+    assert old in text
+    task_file.write_text(text.replace(old, new, 1))
+    after = config.task_digests()
+    assert after["human"] == before["human"] and after["laptop"] != before["laptop"]

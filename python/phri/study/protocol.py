@@ -233,10 +233,20 @@ class StudyConfig:
             d = {
                 k: (v.tolist() if isinstance(v, np.ndarray) else v)
                 for k, v in dataclasses.asdict(task).items()
-                if k != "source"
+                if k not in ("source", "scene")
             }
+            d["scene"] = [_scene_object_record(o) for o in task.scene.objects]
             out[name] = hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
         return out
+
+
+def _scene_object_record(o: Any) -> dict[str, Any]:
+    """Everything a scene object says, as plain values (its digest must not hang on a repr)."""
+    values = {key: getattr(o, key) for key in ("name", "shape", "kind", "margin", "radius", "length")}
+    for key in ("position", "size", "rpy"):
+        v = getattr(o, key)
+        values[key] = None if v is None else [float(x) for x in v]
+    return values
 
 
 def _is_path(spec: str) -> bool:

@@ -1,65 +1,10 @@
 //! Keep-out features (the laptop and human tasks): penetration of sample points along each segment
-//! into a vertical cylinder, and the hinge and Huber functions of the kinked features with the
-//! curvatures the optimiser's model uses for them.
+//! into a vertical cylinder.
 
 use nalgebra::{Vector2, Vector3};
 
+use super::smoothing::{smooth_hinge, smooth_hinge_curvature};
 use super::{Feature, Segment, SegmentGrad};
-
-/// Huber smoothing of |x| with width δ: x²/(2δ) for |x| < δ, |x| − δ/2 beyond; returns (value,
-/// derivative). δ = 0 gives |x| with subgradient 0 at 0. The optimiser uses δ > 0 so that it minimises a
-/// C¹ cost; learning always counts features exactly (δ = 0).
-pub fn huber(x: f64, delta: f64) -> (f64, f64) {
-    if x.abs() >= delta {
-        (x.abs() - 0.5 * delta, sign(x))
-    } else {
-        (0.5 * x * x / delta, x / delta)
-    }
-}
-
-/// Huber-smoothed hinge max(0, x): 0 for x ≤ 0, x²/(2δ) up to δ, x − δ/2 beyond; (value, slope).
-pub fn smooth_hinge(x: f64, delta: f64) -> (f64, f64) {
-    if x <= 0.0 {
-        (0.0, 0.0)
-    } else if x >= delta {
-        (x - 0.5 * delta, 1.0)
-    } else {
-        (0.5 * x * x / delta, x / delta)
-    }
-}
-
-/// Curvature of [`huber`] for the optimiser's model: its second derivative 1/δ inside the quadratic
-/// zone, and on the linear sides the secant curvature 1/|x| of the quadratic through the kink with
-/// the same slope (the reweighting of IRLS, a convex majoriser of |x|), continuous at |x| = δ. It
-/// makes Newton steps aim at the kink instead of running off along a linear piece.
-pub(super) fn huber_curvature(x: f64, delta: f64) -> f64 {
-    let a = x.abs();
-    if a > 0.0 || delta > 0.0 {
-        1.0 / a.max(delta)
-    } else {
-        0.0
-    }
-}
-
-/// Curvature of [`smooth_hinge`] for the optimiser's model, as [`huber_curvature`]: 1/max(x, δ)
-/// where the hinge is active, 0 on its flat side.
-fn smooth_hinge_curvature(x: f64, delta: f64) -> f64 {
-    if x > 0.0 {
-        1.0 / x.max(delta)
-    } else {
-        0.0
-    }
-}
-
-fn sign(v: f64) -> f64 {
-    if v > 0.0 {
-        1.0
-    } else if v < 0.0 {
-        -1.0
-    } else {
-        0.0
-    }
-}
 
 /// Penetration into a vertical cylinder: φ = Σ_k max(0, r − ‖p_xy(s_k) − c‖) over `samples` points
 /// s_k = k/samples along the segment (q_{i-1}, q_i] [m]. The original's laptop and human features.

@@ -21,17 +21,19 @@ mod orientation;
 mod position;
 mod second_order;
 mod segment;
+mod smoothing;
 
 use std::sync::Arc;
 
 pub use builtin::{feature_parameters, FeatureParams, FeatureSpec, KeepoutSpec, BUILTIN_FEATURES, DEFAULT_SAMPLES, MAX_SAMPLES};
 pub use efficiency::Efficiency;
-pub use keepout::{huber, smooth_hinge, Keepout};
+pub use keepout::Keepout;
 pub use orientation::{Coffee, CoffeeForm};
 pub use position::{Origin, Table};
 pub use second_order::{Pieces, SegmentHessian};
 use segment::Workspace;
 pub use segment::{Point, Segment, SegmentGrad};
+pub use smoothing::{huber, smooth_hinge};
 
 use crate::data::RobotData;
 use crate::error::{check_finite, check_vector, PhriError, Result};

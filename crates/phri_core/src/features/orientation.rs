@@ -2,7 +2,7 @@
 
 use nalgebra::Vector3;
 
-use super::keepout::{huber, huber_curvature};
+use super::smoothing::{huber, huber_curvature};
 use super::{Feature, Segment, SegmentGrad};
 
 /// How the cup's tilt is measured. The cup's axis is the feature frame's x axis, x = R[:, 0].

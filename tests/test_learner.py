@@ -524,8 +524,19 @@ def test_reference_writes_into_out_buffers(robot, make):
     for buffers, error, name in bad:
         with pytest.raises(error, match=re.escape(name)):
             learner.reference(1.0, out=buffers)
-    with pytest.raises(TypeError):
-        learner.reference(1.0, out=(np.empty(7, dtype=np.float32), np.empty(7), np.empty(7)))
+    not_buffers = [
+        (
+            (np.empty(7, dtype=np.float32), np.empty(7), np.empty(7)),
+            "out[0] must be a one-dimensional float64",
+        ),
+        ((np.empty(7), np.empty((7, 1)), np.empty(7)), "out[1] must be a one-dimensional float64"),
+        ((np.empty(7), np.empty(7)), "out must hold three arrays (q, qd, qdd), got 2"),
+        ("qqq", "out must be a tuple of three float64 arrays"),
+        (7, "out must be a tuple of three float64 arrays"),
+    ]
+    for buffers, message in not_buffers:
+        with pytest.raises(ex.ShapeError, match=re.escape(message)):
+            learner.reference(1.0, out=buffers)
 
 
 def test_a_replan_budget_goes_on_over_the_next_ticks(make, robot, optimizer):

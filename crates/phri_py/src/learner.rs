@@ -47,6 +47,23 @@ fn slice_mut<'a>(arg: &str, a: &'a mut PyReadwriteArray1<'_, f64>) -> PyResult<&
     a.as_slice_mut().map_err(|_| error(Kind::Shape, format!("{arg} must be C-contiguous")))
 }
 
+/// `out` as three float64 arrays, or a ShapeError naming the one that is not.
+fn buffers<'py>(out: &Bound<'py, PyAny>) -> PyResult<Triple<'py>> {
+    let items: Vec<Bound<'py, PyAny>> = match out.extract() {
+        Ok(items) if !out.is_instance_of::<pyo3::types::PyString>() => items,
+        _ => return Err(error(Kind::Shape, "out must be a tuple of three float64 arrays (q, qd, qdd)")),
+    };
+    if items.len() != 3 {
+        return Err(error(Kind::Shape, format!("out must hold three arrays (q, qd, qdd), got {}", items.len())));
+    }
+    let array = |i: usize| {
+        items[i].cast::<PyArray1<f64>>().cloned().map_err(|_| {
+            error(Kind::Shape, format!("out[{i}] must be a one-dimensional float64 numpy array"))
+        })
+    };
+    Ok((array(0)?, array(1)?, array(2)?))
+}
+
 type Triple<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
 #[pymethods]
@@ -112,12 +129,12 @@ impl PyLearner {
     /// qdd)`, three writable float64 arrays of shape (n,), it writes into them and returns them, so
     /// a 1 kHz loop allocates nothing per tick.
     #[pyo3(signature = (t, *, out = None))]
-    fn reference<'py>(&self, py: Python<'py>, t: f64, out: Option<Triple<'py>>) -> PyResult<Triple<'py>> {
+    fn reference<'py>(&self, py: Python<'py>, t: f64, out: Option<Bound<'py, PyAny>>) -> PyResult<Triple<'py>> {
         if !t.is_finite() {
             return Err(error(Kind::NonFinite, format!("t must be finite, got {t}")));
         }
         let out = match out {
-            Some(out) => out,
+            Some(out) => buffers(&out)?,
             None => (PyArray1::zeros(py, self.n, false), PyArray1::zeros(py, self.n, false), PyArray1::zeros(py, self.n, false)),
         };
         let (mut q, mut qd, mut qdd) =

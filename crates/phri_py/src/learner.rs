@@ -57,9 +57,10 @@ fn buffers<'py>(out: &Bound<'py, PyAny>) -> PyResult<Triple<'py>> {
         return Err(error(Kind::Shape, format!("out must hold three arrays (q, qd, qdd), got {}", items.len())));
     }
     let array = |i: usize| {
-        items[i].cast::<PyArray1<f64>>().cloned().map_err(|_| {
-            error(Kind::Shape, format!("out[{i}] must be a one-dimensional float64 numpy array"))
-        })
+        items[i]
+            .cast::<PyArray1<f64>>()
+            .cloned()
+            .map_err(|_| error(Kind::Shape, format!("out[{i}] must be a one-dimensional float64 numpy array")))
     };
     Ok((array(0)?, array(1)?, array(2)?))
 }

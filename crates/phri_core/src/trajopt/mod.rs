@@ -1,4 +1,5 @@
-//! Trajectory optimisation, the planning step of eq. 4: ξ_R = argmin_ξ w·Φ(ξ) over N waypoints
+//! Trajectory optimisation, the planning step of Bajcsy et al. (CoRL 2017), eq. 4:
+//! ξ_R = argmin_ξ w·Φ(ξ) over N waypoints
 //! with the start and goal fixed and the joint position limits as bounds, plus quadratic penalties
 //! that keep frames above the table and joint steps within a velocity limit ([`cost`]).
 //!

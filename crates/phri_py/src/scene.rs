@@ -37,6 +37,11 @@ fn check_parameters(shape: &str, given: &[(&str, bool)], needs: &[&str]) -> PyRe
     Ok(())
 }
 
+/// A parameter `check_parameters` found present; the same error as there if it is not.
+fn required<T>(shape: &str, arg: &str, value: Option<T>) -> PyResult<T> {
+    value.ok_or_else(|| error(Kind::InvalidParameter, format!("{arg}: a {shape} needs its {arg} [m]")))
+}
+
 fn array<'py>(py: Python<'py>, values: &[f64]) -> Bound<'py, PyArray1<f64>> {
     PyArray1::from_slice(py, values)
 }
@@ -62,13 +67,16 @@ impl PySceneObject {
             "plane" => check_parameters(shape, &given, &[]).map(|_| Shape::Plane)?,
             "box" => {
                 check_parameters(shape, &given, &["size"])?;
-                let size = vector("size", size.as_ref().expect("checked"), 3)?;
-                Shape::Box { size: Vector3::from_column_slice(&size) }
+                let given = required(shape, "size", size)?;
+                Shape::Box { size: Vector3::from_column_slice(&vector("size", &given, 3)?) }
             }
-            "cylinder" => check_parameters(shape, &given, &["radius", "length"])
-                .map(|_| Shape::Cylinder { radius: radius.expect("checked"), length: length.expect("checked") })?,
+            "cylinder" => {
+                check_parameters(shape, &given, &["radius", "length"])?;
+                Shape::Cylinder { radius: required(shape, "radius", radius)?, length: required(shape, "length", length)? }
+            }
             "sphere" => {
-                check_parameters(shape, &given, &["radius"]).map(|_| Shape::Sphere { radius: radius.expect("checked") })?
+                check_parameters(shape, &given, &["radius"])?;
+                Shape::Sphere { radius: required(shape, "radius", radius)? }
             }
             other => {
                 return Err(error(

@@ -56,7 +56,7 @@ fn spec(i: usize, item: &Bound<'_, PyAny>) -> PyResult<FeatureSpec> {
         Err(_) => return Err(error(Kind::InvalidParameter, format!("{arg} needs a \"name\""))),
     };
     let takes = feature_parameters(&name);
-    let mut given = std::collections::HashMap::new();
+    let mut given = Given::new();
     for key in map.keys()?.iter() {
         let key: String = key.extract().map_err(|_| PyTypeError::new_err(format!("{arg}: keys must be strings")))?;
         if key == "name" {
@@ -71,49 +71,58 @@ fn spec(i: usize, item: &Bound<'_, PyAny>) -> PyResult<FeatureSpec> {
         }
         given.insert(key.clone(), map.get_item(&key)?);
     }
-    let number = |key: &str| -> PyResult<Option<f64>> {
-        given
-            .get(key)
-            .map(|v| v.extract::<f64>().map_err(|_| PyTypeError::new_err(format!("{arg}.{key} must be a number"))))
-            .transpose()
-    };
     let params = if takes.contains(&"keep_out") {
-        let keep_out: String = match given.get("keep_out") {
-            Some(v) => v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}.keep_out must be a scene object's name")))?,
-            None => {
-                return Err(error(
-                    Kind::InvalidParameter,
-                    format!("{arg}.keep_out: feature '{name}' needs the scene object it keeps away from"),
-                ))
-            }
-        };
-        let radius = number("radius")?.ok_or_else(|| {
-            error(Kind::InvalidParameter, format!("{arg}.radius: feature '{name}' needs its keep-out radius [m]"))
-        })?;
-        let offset = match given.get("offset") {
-            Some(v) => {
-                let a: ArrayIn<'_> = v.extract()?;
-                let o = vector(&format!("{arg}.offset"), &a, 2)?;
-                [o[0], o[1]]
-            }
-            None => [0.0, 0.0],
-        };
-        let samples = match given.get("samples") {
-            Some(v) => {
-                let n: i64 = v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}.samples must be an integer")))?;
-                usize::try_from(n).map_err(|_| {
-                    error(Kind::InvalidParameter, format!("{arg}.samples must be at least 1 point per segment, got {n}"))
-                })?
-            }
-            None => DEFAULT_SAMPLES,
-        };
-        FeatureParams::Keepout(KeepoutSpec { keep_out, radius, offset, samples })
+        FeatureParams::Keepout(keepout_params(&arg, &name, &given)?)
     } else if takes.contains(&"height") {
-        FeatureParams::Table { height: number("height")?.unwrap_or(0.0) }
+        FeatureParams::Table { height: number(&arg, &given, "height")?.unwrap_or(0.0) }
     } else {
         FeatureParams::None
     };
     Ok(FeatureSpec { name, params })
+}
+
+type Given<'py> = std::collections::HashMap<String, Bound<'py, PyAny>>;
+
+/// Parameter `key` of feature item `arg` as a number, if given.
+fn number(arg: &str, given: &Given<'_>, key: &str) -> PyResult<Option<f64>> {
+    given
+        .get(key)
+        .map(|v| v.extract::<f64>().map_err(|_| PyTypeError::new_err(format!("{arg}.{key} must be a number"))))
+        .transpose()
+}
+
+/// The keep-out parameters of feature item `arg` (named `name`): the object and radius it needs,
+/// the offset and samples it may have.
+fn keepout_params(arg: &str, name: &str, given: &Given<'_>) -> PyResult<KeepoutSpec> {
+    let keep_out: String = match given.get("keep_out") {
+        Some(v) => v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}.keep_out must be a scene object's name")))?,
+        None => {
+            return Err(error(
+                Kind::InvalidParameter,
+                format!("{arg}.keep_out: feature '{name}' needs the scene object it keeps away from"),
+            ))
+        }
+    };
+    let radius = number(arg, given, "radius")?
+        .ok_or_else(|| error(Kind::InvalidParameter, format!("{arg}.radius: feature '{name}' needs its keep-out radius [m]")))?;
+    let offset = match given.get("offset") {
+        Some(v) => {
+            let a: ArrayIn<'_> = v.extract()?;
+            let o = vector(&format!("{arg}.offset"), &a, 2)?;
+            [o[0], o[1]]
+        }
+        None => [0.0, 0.0],
+    };
+    let samples = match given.get("samples") {
+        Some(v) => {
+            let n: i64 = v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}.samples must be an integer")))?;
+            usize::try_from(n).map_err(|_| {
+                error(Kind::InvalidParameter, format!("{arg}.samples must be at least 1 point per segment, got {n}"))
+            })?
+        }
+        None => DEFAULT_SAMPLES,
+    };
+    Ok(KeepoutSpec { keep_out, radius, offset, samples })
 }
 
 /// Per built-in feature, the names of its parameters (`phri._phri.FEATURE_PARAMETERS`).

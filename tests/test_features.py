@@ -427,3 +427,19 @@ def test_bad_weights_are_typed_errors(jaco2):
         features.weighted_cost(xi, [1.0, 1.0, np.inf, 1.0, 1.0])
     with pytest.raises(TypeError):
         phri.Features(jaco2, "table")  # a string is not a list of names
+
+
+def test_keep_out_circles_are_placed_by_their_scene_object(jaco2):
+    task = phri.load_task("laptop")
+    laptop = task.scene["laptop"]
+    moved = phri.Scene(
+        [
+            phri.SceneObject("laptop", "box", laptop.position + [0.25, 0.0, 0.0], size=laptop.size),
+        ]
+    )
+    spec = {"name": "laptop", "keep_out": "laptop", "radius": 0.4, "offset": (0.0, -0.1)}
+    assert phri.Features(jaco2, ["efficiency", spec], scene=moved).keep_out_circles == {
+        "laptop": ((-0.7929 + 0.25, -0.1), 0.4)
+    }
+    assert phri.Features(jaco2, ["efficiency", "table"]).keep_out_circles == {}
+    assert task.keep_out_circle("laptop") == ((-0.7929, -0.1), 0.4)

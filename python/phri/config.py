@@ -105,12 +105,7 @@ class Task:
     def keep_out_circle(self, feature: str) -> tuple[tuple[float, float], float] | None:
         """Centre (x, y) [m] and radius [m] of keep-out feature `feature`'s circle (None if the task
         has no such keep-out feature)."""
-        spec = next((f for f in self.features if f.name == feature and "keep_out" in f.params), None)
-        if spec is None:
-            return None
-        xy = self.scene[spec.params["keep_out"]].position[:2]
-        dx, dy = spec.params.get("offset", (0.0, 0.0))
-        return (float(xy[0] + dx), float(xy[1] + dy)), float(spec.params["radius"])
+        return self.feature_set(_robot()).keep_out_circles.get(feature)
 
 
 def task_names() -> list[str]:

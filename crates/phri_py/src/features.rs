@@ -21,6 +21,8 @@ pub struct PyFeatures {
     pub(crate) set: FeatureSet,
     n: usize,
     frame: String,
+    /// Per keep-out feature: its name, circle centre (x, y) [m] and radius [m].
+    circles: Vec<(String, (f64, f64), f64)>,
 }
 
 fn output<'py>(py: Python<'py>, values: Vec<f64>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
@@ -171,7 +173,24 @@ impl PyFeatures {
         if let Some(r) = &ranges {
             set.set_ranges(Some(&*vector("ranges", r, set.len())?)).py_err()?;
         }
-        Ok(PyFeatures { set, n, frame })
+        let mut circles = Vec::new();
+        for (i, spec) in specs.iter().enumerate() {
+            if let (FeatureParams::Keepout(k), Some(scene)) = (&spec.params, &scene) {
+                let c = k.center(&format!("features[{i}]"), &scene.scene).py_err()?;
+                circles.push((spec.name.clone(), (c.x, c.y), k.radius));
+            }
+        }
+        Ok(PyFeatures { set, n, frame, circles })
+    }
+
+    /// Each keep-out feature's circle: {name: ((x, y) centre [m], radius [m])}, placed by the scene.
+    #[getter]
+    fn keep_out_circles<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let out = PyDict::new(py);
+        for (name, center, radius) in &self.circles {
+            out.set_item(name, (*center, *radius))?;
+        }
+        Ok(out)
     }
 
     /// The frame whose origin the features read.

@@ -37,6 +37,14 @@ pub struct KeepoutSpec {
     pub samples: usize,
 }
 
+impl KeepoutSpec {
+    /// The keep-out circle's centre (x, y) [m]: the named object's position plus `offset`; `arg`
+    /// names the feature in an error (e.g. "features[1]").
+    pub fn center(&self, arg: &str, scene: &Scene) -> Result<Vector2<f64>> {
+        Ok(scene.require(&format!("{arg}.keep_out"), &self.keep_out)?.xy() + Vector2::from(self.offset))
+    }
+}
+
 /// The parameters a built-in feature takes.
 #[derive(Debug, Clone, PartialEq)]
 pub enum FeatureParams {
@@ -132,11 +140,9 @@ impl FeatureSpec {
                         format!("is needed by keep-out feature '{name}' ({arg}), which keeps away from '{}'", k.keep_out),
                     )
                 })?;
-                let object = scene.require(&format!("{arg}.keep_out"), &k.keep_out)?;
-                let center = object.xy() + Vector2::from(k.offset);
-                Box::new(Keepout { name: name.into(), center, radius: k.radius, samples: k.samples })
+                Box::new(Keepout { name: name.into(), center: k.center(arg, scene)?, radius: k.radius, samples: k.samples })
             }
-            (name, _) => unreachable!("check() accepted '{name}' with parameters it does not take"),
+            (name, _) => return Err(PhriError::invalid(arg, format!("gives feature '{name}' parameters it does not take"))),
         })
     }
 }

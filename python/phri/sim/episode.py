@@ -376,6 +376,7 @@ def _simulate(
     world.reset(task.start)
     measured = np.zeros(model.nq)
     tau = np.zeros(model.nq)
+    reference = (np.zeros(model.nq), np.zeros(model.nq), np.zeros(model.nq))  # written every tick
     frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
     try:
         for k in range(steps):
@@ -391,7 +392,7 @@ def _simulate(
                 if push is not None:
                     measured += model.jacobian(HAND, q).T @ np.concatenate(push)
                 learner.observe(t, measured)
-            q_ref, qd_ref, _ = learner.reference(t)
+            q_ref, qd_ref, _ = learner.reference(t, out=reference)
             parts.controller.torque_implicit(q, qd, q_ref, qd_ref, dt, out=tau)
             if k % parts.log_every == 0:
                 _log_row(trace, model, t, push, q=q, qd=qd, q_ref=q_ref, tau=tau, u_h=measured)

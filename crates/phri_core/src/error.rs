@@ -28,6 +28,10 @@ pub enum PhriError {
     #[error("{arg}: {reason}")]
     Urdf { arg: String, reason: String },
 
+    /// A plan cannot be made safe, or safety cannot be checked (no collision model).
+    #[error("{reason}")]
+    Planning { reason: String },
+
     /// An iterative solver stopped without meeting its tolerance.
     #[error("{what} did not converge after {iterations} iterations (residual {residual:e})")]
     NotConverged { what: String, iterations: usize, residual: f64 },

@@ -10,6 +10,7 @@ use std::path::Path;
 
 use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Unit, Vector3};
 
+use crate::collision::CollisionModel;
 use crate::error::{PhriError, Result};
 
 /// Rigid transform with a rotation matrix (cheap to apply and to read rotation entries from).
@@ -113,9 +114,12 @@ pub struct RobotModel {
     /// Gravity in the base frame [m/s²].
     pub gravity: Vector3<f64>,
     frame_index: HashMap<String, usize>,
+    /// Spheres per link, fitted to the URDF's collision geometry (see [`crate::collision`]).
+    pub(crate) collision: CollisionModel,
 }
 
-fn pose(p: &urdf_rs::Pose) -> Transform {
+/// A URDF origin (xyz, rpy) as a transform.
+pub(crate) fn urdf_pose(p: &urdf_rs::Pose) -> Transform {
     let rot = snap_axis_permutation(Rotation3::from_euler_angles(p.rpy[0], p.rpy[1], p.rpy[2]));
     IsometryMatrix3::from_parts(Translation3::new(p.xyz[0], p.xyz[1], p.xyz[2]), rot)
 }
@@ -183,7 +187,7 @@ fn link_inertia(link: &urdf_rs::Link) -> BodyInertia {
         i.inertia.iyz,
         i.inertia.izz,
     );
-    let origin = pose(&i.origin);
+    let origin = urdf_pose(&i.origin);
     let r = origin.rotation.matrix();
     BodyInertia { mass: i.mass.value, com: origin.translation.vector, inertia: r * local * r.transpose() }
 }
@@ -409,6 +413,7 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
     let mut joints: Vec<Joint> = Vec::new();
     let mut bodies: Vec<BodyInertia> = vec![BodyInertia::ZERO];
     let mut frames: Vec<Frame> = Vec::new();
+    let mut collision = CollisionModel::default();
     // Depth-first over the subtree below base: (link, body, body_T_link).
     let mut stack: Vec<(&str, usize, Transform)> = vec![(base, 0, Transform::identity())];
     // Chain joints must get body indices in path order; DFS visits a path joint only after its
@@ -416,9 +421,10 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
     while let Some((name, body, body_t_link)) = stack.pop() {
         let link = links[name];
         bodies[body] = bodies[body].combine(&link_inertia(link).transformed(&body_t_link));
+        collision.add_urdf_link(link, FrameId(frames.len()), &Transform::identity())?;
         frames.push(Frame { name: name.to_string(), body, body_t_frame: body_t_link });
         for j in children.get(name).map(Vec::as_slice).unwrap_or(&[]) {
-            let origin = body_t_link * pose(&j.origin);
+            let origin = body_t_link * urdf_pose(&j.origin);
             if on_path.contains(j.name.as_str()) && is_movable(j) {
                 let kind = match j.joint_type {
                     urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => JointKind::Revolute,
@@ -475,6 +481,7 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
         frames,
         gravity: Vector3::new(0.0, 0.0, -STANDARD_GRAVITY),
         frame_index,
+        collision,
     })
 }
 

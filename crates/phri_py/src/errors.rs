@@ -15,6 +15,7 @@ pub enum Kind {
     UnknownName,
     Urdf,
     NotConverged,
+    Planning,
 }
 
 impl Kind {
@@ -26,12 +27,12 @@ impl Kind {
             Kind::UnknownName => "UnknownNameError",
             Kind::Urdf => "UrdfError",
             Kind::NotConverged => "NotConvergedError",
+            Kind::Planning => "PlanningError",
         }
     }
 
     fn cell(self) -> &'static PyOnceLock<Py<PyType>> {
-        static CELLS: [PyOnceLock<Py<PyType>>; 6] =
-            [PyOnceLock::new(), PyOnceLock::new(), PyOnceLock::new(), PyOnceLock::new(), PyOnceLock::new(), PyOnceLock::new()];
+        static CELLS: [PyOnceLock<Py<PyType>>; 7] = [const { PyOnceLock::new() }; 7];
         &CELLS[self as usize]
     }
 }
@@ -55,6 +56,7 @@ pub fn to_py(e: PhriError) -> PyErr {
         PhriError::UnknownName { .. } => Kind::UnknownName,
         PhriError::Urdf { .. } => Kind::Urdf,
         PhriError::NotConverged { .. } => Kind::NotConverged,
+        PhriError::Planning { .. } => Kind::Planning,
     };
     error(kind, e.to_string())
 }

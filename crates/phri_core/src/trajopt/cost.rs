@@ -106,6 +106,13 @@ impl TrajectoryOptimizer {
                 clearance_penalty(&self.params.clearance, &mut self.scratch, features, traj, grad, model.as_deref_mut(), exact);
             cost += penalty;
         }
+        if let Some(params) = &self.params.collision {
+            let robot = features.model();
+            let collision_penalty =
+                super::collision::collision_penalty(params, robot, &mut self.collision_scratch, traj, grad, model.as_deref_mut());
+            penalty += collision_penalty;
+            cost += collision_penalty;
+        }
         if !self.params.max_step.is_empty() {
             let pen_grad = model.map(|model| &mut model.pen_grad[..]);
             let step_penalty = step_penalty(&self.params.max_step, self.params.step_weight, traj, grad, pen_grad);
@@ -115,11 +122,19 @@ impl TrajectoryOptimizer {
         (cost, penalty)
     }
 
-    /// Largest clearance violation of a trajectory [m].
+    /// Largest violation of a clearance (at the waypoints) or of a collision margin (along the
+    /// executed curve) of a trajectory [m]; notes the pair closest to its margin.
     pub(super) fn violation(&mut self, features: &FeatureSet, traj: &[f64]) -> f64 {
         let model = features.model();
         let n = self.dof;
         let mut worst: f64 = 0.0;
+        self.worst_pair = None;
+        if let Some(params) = &self.params.collision {
+            self.worst_pair = super::collision::executed_worst(params, model, &mut self.collision_scratch, traj);
+            if let Some(v) = &self.worst_pair {
+                worst = worst.max(v.margin - v.distance);
+            }
+        }
         if self.params.clearance.is_empty() {
             return worst;
         }
@@ -127,18 +142,6 @@ impl TrajectoryOptimizer {
             model.forward_kinematics_unchecked(&traj[i * n..(i + 1) * n], &mut self.scratch.data);
             for c in &self.params.clearance {
                 worst = worst.max(c.min_z - model.frame_pose(c.frame, &self.scratch.data).translation.z);
-            }
-        }
-        worst
-    }
-
-    /// Largest |q_i,j − q_{i−1},j| − max_step_j of a trajectory [rad], at least 0.
-    pub(super) fn step_excess(&self, traj: &[f64]) -> f64 {
-        let n = self.dof;
-        let mut worst: f64 = 0.0;
-        for i in 1..self.waypoints {
-            for (j, limit) in self.params.max_step.iter().enumerate() {
-                worst = worst.max((traj[i * n + j] - traj[(i - 1) * n + j]).abs() - limit);
             }
         }
         worst

@@ -165,6 +165,9 @@ impl Coarse {
         for c in &mut coarse_params.clearance {
             c.weight *= ratio * ratio;
         }
+        if let Some(c) = coarse_params.collision.as_mut() {
+            c.weight *= ratio * ratio;
+        }
         for v in &mut coarse_params.max_step {
             *v *= ratio;
         }

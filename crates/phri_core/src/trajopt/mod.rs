@@ -26,6 +26,7 @@
 //! that the cost is C¹ (and piecewise C²).
 
 pub mod block_tridiagonal;
+mod collision;
 mod cost;
 mod levels;
 mod line_search;
@@ -39,11 +40,13 @@ use nalgebra::Matrix6xX;
 
 use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::features::FeatureSet;
+use collision::CollisionScratch;
 use cost::{Buffer, Derivatives, Model, Scratch};
+use crate::collision::Violation;
 pub use levels::PlanLevels;
 use levels::{Coarse, LevelsOut, Start};
 use newton::{NewtonWorkspace, SolverState};
-pub use params::{Clearance, KinematicCurvature, TrajoptInfo, TrajoptParams};
+pub use params::{Clearance, CollisionParams, KinematicCurvature, TrajoptInfo, TrajoptParams, CLEARANCE_TOLERANCE, STEP_TOLERANCE};
 
 /// A reusable optimiser for trajectories of `waypoints` × `dof` (workspaces sized once).
 #[derive(Clone)]
@@ -62,6 +65,9 @@ pub struct TrajectoryOptimizer {
     model: Model,
     trial_model: Model,
     scratch: Scratch,
+    collision_scratch: CollisionScratch,
+    /// The pair furthest into its margin along the last solve's plan.
+    worst_pair: Option<Violation>,
     newton: NewtonWorkspace,
     /// The next coarser level, if multiresolution builds one.
     coarse: Option<Box<Coarse>>,
@@ -84,6 +90,11 @@ impl TrajectoryOptimizer {
             return Err(PhriError::invalid("waypoints", format!("must be at least 3 (start, one free, goal), got {waypoints}")));
         }
         params.check(model)?;
+        if let Some(c) = &params.collision {
+            if c.checker.robot_name() != model.name || c.checker.body_count() != model.collision().bodies().len() {
+                return Err(PhriError::invalid("collision", "was made for another robot (or its collision model changed)"));
+            }
+        }
         let len = waypoints * dof;
         let coarse = Coarse::build(features, waypoints, &params)?;
         Ok(TrajectoryOptimizer {
@@ -95,6 +106,8 @@ impl TrajectoryOptimizer {
             lower: model.lower_limits(),
             upper: model.upper_limits(),
             scratch: Scratch { data: model.data(), jacobian: Matrix6xX::zeros(dof), hz: vec![0.0; dof * dof] },
+            collision_scratch: CollisionScratch::new(model),
+            worst_pair: None,
             model: Model::new(dof, waypoints),
             trial_model: Model::new(dof, waypoints),
             newton: NewtonWorkspace::new(dof, waypoints),
@@ -126,6 +139,12 @@ impl TrajectoryOptimizer {
 
     pub fn waypoints(&self) -> usize {
         self.waypoints
+    }
+
+    /// After a solve with collision checks: the pair closest to (or furthest into) its margin
+    /// along the plan's executed curve, with that distance.
+    pub fn closest_pair(&self) -> Option<&Violation> {
+        self.worst_pair.as_ref()
     }
 
     /// The straight line in joint space from `start` to `goal`, row-major (the cold start).
@@ -288,8 +307,10 @@ impl TrajectoryOptimizer {
             self.solve_prepared(features, weights, deadline, start_mode, levels);
         let traj = std::mem::take(&mut self.traj);
         let max_violation = self.violation(features, &traj);
-        let max_step_excess = self.step_excess(&traj);
+        let max_step_excess = collision::executed_step_excess(&self.params.max_step, &traj);
         self.traj = traj;
+        let step_ok = self.params.max_step.iter().all(|l| max_step_excess <= STEP_TOLERANCE * l);
+        let feasible = max_violation <= CLEARANCE_TOLERANCE && step_ok;
         Ok(TrajoptInfo {
             iterations,
             coarse_iterations,
@@ -298,6 +319,7 @@ impl TrajectoryOptimizer {
             penalty,
             max_violation,
             max_step_excess,
+            feasible,
             converged,
             seconds: began.elapsed().as_secs_f64(),
         })

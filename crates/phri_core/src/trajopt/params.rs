@@ -1,8 +1,10 @@
 //! What a caller tunes ([`TrajoptParams`], with the penalties [`Clearance`] and `max_step`, and the
 //! Newton model's [`KinematicCurvature`]) and what a solve reports ([`TrajoptInfo`]).
 
+use std::sync::Arc;
 use std::time::Duration;
 
+use crate::collision::CollisionChecker;
 use crate::error::{check_vector, PhriError, Result};
 use crate::model::{FrameId, RobotModel};
 
@@ -17,6 +19,53 @@ pub struct Clearance {
     /// Penalty weight ρ [cost per m²].
     pub weight: f64,
 }
+
+/// Keep the arm's collision bodies clear of a scene and of each other along the executed curve
+/// (see `trajopt::collision`): the penalty ρ·max(0, margin + buffer − d)² per sphere pair at
+/// `samples` points per segment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CollisionParams {
+    /// The pairs and their margins.
+    pub checker: Arc<CollisionChecker>,
+    /// Penalty weight ρ [cost per m²] (default 10⁴).
+    pub weight: f64,
+    /// Extra clearance the penalty aims at beyond each margin [m] (default 2 mm): the quadratic
+    /// penalty's give at an optimum stays inside it.
+    pub buffer: f64,
+    /// Pairs within margin + band are modelled by the Newton step [m] (default 5 cm).
+    pub band: f64,
+    /// Points per segment of the executed cubic at which the penalty acts (default 4, the last
+    /// the waypoint).
+    pub samples: usize,
+}
+
+impl CollisionParams {
+    /// The defaults for `checker`.
+    pub fn new(checker: Arc<CollisionChecker>) -> Self {
+        CollisionParams { checker, weight: 1e4, buffer: 2e-3, band: 0.05, samples: 4 }
+    }
+
+    fn check(&self) -> Result<()> {
+        for (arg, v) in [("collision_weight", self.weight), ("collision_buffer", self.buffer), ("collision_band", self.band)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(PhriError::invalid(arg, format!("must be finite and >= 0, got {v}")));
+            }
+        }
+        if !(self.weight > 0.0) {
+            return Err(PhriError::invalid("collision_weight", "must be > 0"));
+        }
+        if !(1..=64).contains(&self.samples) {
+            return Err(PhriError::invalid("collision_samples", format!("must be 1..=64 points per segment, got {}", self.samples)));
+        }
+        Ok(())
+    }
+}
+
+/// A plan is feasible when no margin is violated by more than this along its executed curve [m].
+pub const CLEARANCE_TOLERANCE: f64 = 1e-3;
+
+/// ... and no joint moves faster than its `max_step` allows by more than this fraction [1].
+pub const STEP_TOLERANCE: f64 = 0.05;
 
 /// The Newton model's share of the kinematics' second derivatives (see
 /// `TrajoptParams::kinematic_curvature`).
@@ -59,6 +108,8 @@ pub struct TrajoptParams {
     pub max_step: Vec<f64>,
     /// Penalty weight of `max_step` [cost per rad²].
     pub step_weight: f64,
+    /// The collision bodies kept clear of the scene and of each other; None for no checks.
+    pub collision: Option<CollisionParams>,
     /// How the Newton model treats the second derivatives of the kinematics in the features that
     /// act at every waypoint (table, coffee, origin) and in the clearance penalty (default
     /// [`KinematicCurvature::Settled`]). See `features::SegmentHessian::kinematic`.
@@ -82,6 +133,7 @@ impl Default for TrajoptParams {
             clearance: Vec::new(),
             max_step: Vec::new(),
             step_weight: 1e3,
+            collision: None,
             kinematic_curvature: KinematicCurvature::Settled,
             coarsening: 3,
             coarsest: 8,
@@ -109,6 +161,9 @@ impl TrajoptParams {
                 return Err(PhriError::invalid("clearance", "min_z must be finite and weight finite and > 0"));
             }
         }
+        if let Some(c) = &self.collision {
+            c.check()?;
+        }
         if self.coarsest < 3 {
             return Err(PhriError::invalid("coarsest", format!("must be at least 3 waypoints, got {}", self.coarsest)));
         }
@@ -135,12 +190,16 @@ pub struct TrajoptInfo {
     pub cost: f64,
     /// Final penalty part of the cost (clearance and max_step) [cost].
     pub penalty: f64,
-    /// Largest clearance violation at the solution [m] (0 when satisfied or unused).
+    /// Largest violation of a clearance or a collision margin along the executed curve [m] (0
+    /// when all are kept or none is set).
     pub max_violation: f64,
-    /// Largest joint step beyond `max_step` between consecutive waypoints [rad] (0 without
-    /// max_step): the quadratic penalty leaves about gradient/(2·step_weight); much more means
-    /// the goal is too far for the duration.
+    /// Largest joint move per segment of the executed curve (the cubic's speed times the waypoint
+    /// spacing) beyond `max_step` [rad] (0 without max_step); much more than the penalty's give,
+    /// gradient/(2·step_weight), means the goal is too far for the duration.
     pub max_step_excess: f64,
+    /// The plan keeps every margin within [`CLEARANCE_TOLERANCE`] and every joint within
+    /// `max_step` by [`STEP_TOLERANCE`] along its executed curve (whether or not it converged).
+    pub feasible: bool,
     /// Met a tolerance (rather than an iteration or time cap).
     pub converged: bool,
     /// Wall time [s].

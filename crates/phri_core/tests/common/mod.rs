@@ -11,6 +11,15 @@ pub fn jaco2() -> RobotModel {
     RobotModel::from_urdf_str(JACO2_URDF, Some("root"), Some("j2s7s300_end_effector")).unwrap()
 }
 
+pub const CUP_URDF: &str = include_str!("../../../../python/phri/robots/jaco2/cup.urdf");
+
+/// The JACO2 carrying the study's cup at its cup frame (as `Robot.jaco2()` does).
+pub fn jaco2_with_cup() -> RobotModel {
+    let model = jaco2();
+    let frame = model.frame_id("j2s7s300_cup_frame").unwrap();
+    model.with_attached_urdf("cup", frame, CUP_URDF).unwrap()
+}
+
 pub fn deg(q: [f64; 7]) -> Vec<f64> {
     q.iter().map(|d| d.to_radians()).collect()
 }

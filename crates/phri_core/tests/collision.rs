@@ -59,3 +59,33 @@ fn explore_person() {
         println!("({x},{y}) excluded {:?}: {}", checker.excluded(), out.join(" "));
     }
 }
+
+#[test]
+fn explore_plans() {
+    use phri_core::trajopt::{CollisionParams, TrajectoryOptimizer, TrajoptParams};
+    use std::sync::Arc;
+    let model = Arc::new(common::jaco2_with_cup());
+    let l7 = model.frame_id("j2s7s300_link_7").unwrap();
+    let tasks = [("human", 10.0), ("coffee", 1.0), ("table", 1.0), ("laptop", 10.0)];
+    for (task, w) in tasks {
+        let scene = task_scene(task);
+        let fs0 = common::study::study_features(model.clone(), l7, &["efficiency", task]);
+        let mut fs = fs0;
+        let checker = Arc::new(CollisionChecker::new(&model, &scene, Some(SELF_MARGIN)).unwrap());
+        let spacing = 15.0 / 30.0;
+        let params = TrajoptParams {
+            collision: Some(CollisionParams::new(checker)),
+            max_step: model.velocity_limits().iter().map(|v| 0.5 * v * spacing).collect(),
+            ..Default::default()
+        };
+        let mut opt = TrajectoryOptimizer::new(&fs, 31, params).unwrap();
+        let (s, g) = (pose(task, "start"), pose(task, "goal"));
+        let mut out = vec![0.0; 31 * 7];
+        let t = std::time::Instant::now();
+        let info = opt.solve(&mut fs, &[1.0, w], &s, &g, None, &mut out).unwrap();
+        let el = t.elapsed();
+        println!("{task}: {:?} {:?} {:?}", el, info, opt.closest_pair());
+        let info0 = opt.solve(&mut fs, &[1.0, 0.0], &s, &g, None, &mut out).unwrap();
+        println!("  w=0: {:?} {:?}", info0, opt.closest_pair());
+    }
+}

@@ -309,9 +309,12 @@ impl CollisionChecker {
         self.place(robot, data, scratch);
         let mut worst: Option<(usize, f64)> = None;
         for (k, pair) in self.pairs.iter().enumerate() {
-            let slack = self.pair_distance(robot, scratch, pair) - pair.margin;
-            if worst.is_none_or(|(_, w)| slack < w) {
-                worst = Some((k, slack));
+            // Only sphere pairs closer than the worst so far matter (the bounds skip the rest).
+            let within = worst.map_or(f64::INFINITY, |(_, w)| w + pair.margin);
+            let mut nearest = f64::INFINITY;
+            self.for_each_sphere_pair(robot, scratch, pair, within, |d, _, _, _| nearest = nearest.min(d));
+            if nearest < within {
+                worst = Some((k, nearest - pair.margin));
             }
         }
         worst.map(|(k, slack)| {

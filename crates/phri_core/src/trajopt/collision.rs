@@ -91,35 +91,27 @@ pub(super) fn collision_penalty(
             if b == m - 1 && k == params.samples {
                 continue; // the goal: fixed
             }
-            cubic_point(traj, n, b, u, q);
+            for j in 0..n {
+                q[j] = (1.0 - u) * traj[(b - 1) * n + j] + u * traj[b * n + j];
+            }
             robot.forward_kinematics_unchecked(q, data);
-            let w = cubic_weights(u, b, m);
-            let rows = rows(b, m);
             params.checker.for_each_near(robot, data, proximity, params.band, |near, g| {
                 let gap = near.margin + params.buffer - near.distance;
                 if gap > 0.0 {
                     penalty += rho * gap * gap;
-                    for (row, w) in rows.iter().zip(w) {
-                        if let Some(r) = row {
-                            for j in 0..n {
-                                grad[r * n + j] -= 2.0 * rho * gap * w * g[j];
+                    for (r, wr) in [(b - 1, 1.0 - u), (b, u)] {
+                        for j in 0..n {
+                            let d = -2.0 * rho * gap * wr * g[j];
+                            grad[r * n + j] += d;
+                            if let Some(model) = model.as_deref_mut() {
+                                model.pen_grad[r * n + j] += d;
                             }
                         }
                     }
                 }
                 if let Some(model) = model.as_deref_mut() {
-                    // The point modelled on (a, b): weights w1, w2 as (1 − s, s)·(w1 + w2).
-                    let total = w[1] + w[2];
-                    let s = w[2] / total;
                     model.pieces.set_segment(b);
-                    model.pieces.push(s, gap, 2.0 * rho, |j| -total * g[j]);
-                    if gap > 0.0 {
-                        for (r, wr) in [(b - 1, w[1]), (b, w[2])] {
-                            for j in 0..n {
-                                model.pen_grad[r * n + j] -= 2.0 * rho * gap * wr * g[j];
-                            }
-                        }
-                    }
+                    model.pieces.push(u, gap, 2.0 * rho, |j| -g[j]);
                 }
             });
         }

@@ -202,15 +202,28 @@ fn clearance_penalty(
     penalty
 }
 
+/// The step limit of segment `i` (of `m` waypoints) for a joint's `max_step` [rad]: two thirds of
+/// it on the first and last segments, where the executed cubic starts or ends at rest and so runs
+/// up to 1.5 times its chord's speed (see `collision::executed_step_excess`).
+#[inline]
+pub(super) fn segment_step(max_step: f64, i: usize, m: usize) -> f64 {
+    if i == 1 || i == m - 1 {
+        max_step * (2.0 / 3.0)
+    } else {
+        max_step
+    }
+}
+
 /// The max_step penalty Σ ρ·max(0, |q_i,j − q_{i−1},j| − limit_j)² of `traj`, its gradient added to
 /// `grad` (and to `pen_grad`, the Newton model's share of the pieces that are on).
 fn step_penalty(max_step: &[f64], weight: f64, traj: &[f64], grad: &mut [f64], mut pen_grad: Option<&mut [f64]>) -> f64 {
     let n = max_step.len();
+    let m = traj.len() / n;
     let mut penalty = 0.0;
-    for i in 1..traj.len() / n {
+    for i in 1..m {
         for (j, limit) in max_step.iter().enumerate() {
             let d = traj[i * n + j] - traj[(i - 1) * n + j];
-            let excess = d.abs() - limit;
+            let excess = d.abs() - segment_step(*limit, i, m);
             if excess > 0.0 {
                 penalty += weight * excess * excess;
                 let g = 2.0 * weight * excess * d.signum();

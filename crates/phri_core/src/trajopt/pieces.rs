@@ -66,7 +66,7 @@ impl PieceModel {
                     for (side, sign) in [(0, 1.0), (1, -1.0)] {
                         let k = base + (i * n + j) * 2 + side;
                         self.c[k] = 2.0 * steps.weight;
-                        self.f[k] = sign * diff - limit;
+                        self.f[k] = sign * diff - super::cost::segment_step(*limit, i, m);
                         self.lowest[k] = i - 1;
                     }
                 }
@@ -203,7 +203,7 @@ impl PieceModel {
                             continue;
                         }
                         // ρ·(sign·(diff + Δ_i − Δ_{i−1}) − limit)².
-                        let c0 = sign * diff - limit;
+                        let c0 = sign * diff - super::cost::segment_step(*limit, i, m);
                         rhs[i * n + j] -= 2.0 * rho * c0 * sign;
                         rhs[(i - 1) * n + j] += 2.0 * rho * c0 * sign;
                         system.diag[(i * n + j) * n + j] += 2.0 * rho;

@@ -9,6 +9,7 @@ use nalgebra::{DMatrix, DVector};
 use crate::data::RobotData;
 use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::model::RobotModel;
+use crate::wall::{VirtualWall, WallStatus};
 
 /// A gain matrix: diagonal (one value per joint) or full n × n.
 #[derive(Debug, Clone, PartialEq)]
@@ -89,10 +90,12 @@ impl ImpedanceParams {
 }
 
 /// What a step did beyond computing the torque.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ControlStatus {
     /// Bit j is set when joint j was clipped to its effort limit.
     pub saturated: u64,
+    /// What the virtual wall did (force 0 without a wall or when it did not act).
+    pub wall: WallStatus,
 }
 
 impl ControlStatus {
@@ -118,6 +121,8 @@ pub struct ImpedanceController {
     implicit_lhs: DMatrix<f64>,
     rhs: DVector<f64>,
     bias: Vec<f64>,
+    /// The run-time wall around the furniture, if set.
+    wall: Option<VirtualWall>,
 }
 
 impl ImpedanceController {
@@ -163,7 +168,18 @@ impl ImpedanceController {
             implicit_lhs: DMatrix::zeros(n, n),
             rhs: DVector::zeros(n),
             bias: vec![0.0; n],
+            wall: None,
         })
+    }
+
+    /// Adds (or with None removes) a virtual wall: its torque is added to every law's output
+    /// before saturation.
+    pub fn set_wall(&mut self, wall: Option<VirtualWall>) {
+        self.wall = wall;
+    }
+
+    pub fn wall(&self) -> Option<&VirtualWall> {
+        self.wall.as_ref()
     }
 
     pub fn params(&self) -> &ImpedanceParams {
@@ -194,11 +210,15 @@ impl ImpedanceController {
 
     /// Clips `tau` to the effort limits. Finite inputs so large that the torque overflows are an
     /// error naming `args` (the inputs that scale it), never a NaN passed on to the motors.
-    fn saturate(&self, args: &str, tau: &mut [f64]) -> Result<ControlStatus> {
+    fn saturate(&mut self, args: &str, q: &[f64], qd: &[f64], tau: &mut [f64]) -> Result<ControlStatus> {
+        let wall = match self.wall.as_mut() {
+            Some(w) => w.add_torque(&self.model, q, qd, tau),
+            None => WallStatus::default(),
+        };
         if let Some(j) = tau.iter().position(|t| !t.is_finite()) {
             return Err(PhriError::invalid(args, format!("so large that the torque of joint {j} overflows (non-finite)")));
         }
-        let mut status = ControlStatus::default();
+        let mut status = ControlStatus { saturated: 0, wall };
         for (j, (t, lim)) in tau.iter_mut().zip(&self.effort_limits).enumerate() {
             if t.abs() > *lim {
                 *t = t.clamp(-lim, *lim);
@@ -223,7 +243,7 @@ impl ImpedanceController {
         for j in 0..tau.len() {
             tau[j] += self.scratch[j] + self.scratch2[j];
         }
-        self.saturate("q, qd, q_ref, qd_ref and the gains are", tau)
+        self.saturate("q, qd, q_ref, qd_ref and the gains are", q, qd, tau)
     }
 
     /// Eq. 6 discretised implicitly for a simulator that integrates explicitly with step `dt` [s]
@@ -285,7 +305,7 @@ impl ImpedanceController {
         for j in 0..n {
             tau[j] += self.scratch[j] + self.scratch2[j];
         }
-        self.saturate("q, qd, q_ref, qd_ref, dt and the gains are", tau)
+        self.saturate("q, qd, q_ref, qd_ref, dt and the gains are", q, qd, tau)
     }
 
     /// Eq. 5 by feedback linearisation: commands the closed loop
@@ -324,7 +344,7 @@ impl ImpedanceController {
         for j in 0..n {
             tau[j] -= u_h[j];
         }
-        self.saturate("q, qd, q_ref, qd_ref, qdd_ref, u_h and the gains are", tau)
+        self.saturate("q, qd, q_ref, qd_ref, qdd_ref, u_h and the gains are", q, qd, tau)
     }
 }
 

@@ -92,12 +92,46 @@ pub struct Observation {
     pub replanned: bool,
 }
 
+/// A replan the learner did not adopt because it was not feasible (see
+/// [`crate::trajopt::TrajoptInfo::feasible`]): the robot kept tracking its last feasible plan.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RejectedPlan {
+    /// Time of the replan [s].
+    pub t: f64,
+    /// Why: the violated margin or speed, with the pair that violated it.
+    pub reason: String,
+}
+
 /// The learner's record, for logs and plots. Appended to only when something happens.
 #[derive(Debug, Clone, Default)]
 pub struct History {
     pub interactions: Vec<Interaction>,
     /// (time the plan took effect [s], waypoints N × n row-major); the first is the initial plan.
     pub plans: Vec<(f64, Vec<f64>)>,
+    /// Replans not adopted because they were infeasible.
+    pub rejected: Vec<RejectedPlan>,
+}
+
+/// Why a plan with `info` is infeasible, naming the pair closest to its margin (`optimizer`'s last
+/// solve).
+pub fn infeasibility(info: &TrajoptInfo, optimizer: &TrajectoryOptimizer) -> String {
+    let mut reasons = Vec::new();
+    if info.max_violation > crate::trajopt::CLEARANCE_TOLERANCE {
+        match optimizer.closest_pair() {
+            Some(v) => reasons.push(format!(
+                "'{}' comes within {:.4} m of '{}' (margin {:.3} m)",
+                v.body, v.distance, v.other, v.margin
+            )),
+            None => reasons.push(format!("a clearance is violated by {:.4} m", info.max_violation)),
+        }
+    }
+    if info.max_step_excess > 0.0 {
+        reasons.push(format!("a joint moves {:.4} rad per segment faster than max_step allows", info.max_step_excess));
+    }
+    if reasons.is_empty() {
+        reasons.push("it violates a limit".into());
+    }
+    reasons.join("; ")
 }
 
 /// Algorithm 1.
@@ -198,7 +232,12 @@ impl Learner {
         let m = optimizer.waypoints();
         let full_cap = optimizer.params().max_iterations;
         let mut levels = optimizer.plan_levels();
-        optimizer.solve_levels(&mut features, &weights, start, goal, None, &mut levels)?;
+        let info = optimizer.solve_levels(&mut features, &weights, start, goal, None, &mut levels)?;
+        if !info.feasible {
+            return Err(PhriError::Planning {
+                reason: format!("the initial plan is not safe to track: {}", infeasibility(&info, &optimizer)),
+            });
+        }
         let plan0 = levels.plan().to_vec();
         let seeds = Seeds::plan(params.seeds, &update, &weights, &mut features, &mut optimizer, start, goal)?;
         if params.replan_iterations > 0 {
@@ -207,7 +246,7 @@ impl Learner {
         }
         let plan = TimedTrajectory::new(plan0.clone(), n, params.duration, params.interpolation)?;
         // The deformation of unit torques, μ·H per waypoint of a full window (for relevance).
-        let history = History { interactions: Vec::new(), plans: vec![(0.0, plan0)] };
+        let history = History { interactions: Vec::new(), plans: vec![(0.0, plan0)], rejected: Vec::new() };
         Ok(Learner {
             features,
             deformation,
@@ -372,7 +411,8 @@ impl Learner {
 
     /// Replans over [0, T] from the original start, warm-started from the current plan and its
     /// coarse plans (or the nearest seed's, if its plan costs less at the new weights), within the
-    /// per-tick budget, and switches to the result at `t`.
+    /// per-tick budget, and switches to the result at `t` if it is feasible; otherwise the robot
+    /// keeps tracking its plan (the last feasible one) and the history records why.
     fn replan(&mut self, t: f64) -> Result<TrajoptInfo> {
         let mut init = &self.levels;
         if let Some(seed) = self.seeds.nearest(&self.weights) {
@@ -391,10 +431,19 @@ impl Learner {
             Some(init),
             &mut self.replanned,
         )?;
+        self.replan_pending = self.params.replan_iterations > 0 && !info.converged;
+        if !info.feasible {
+            // A budgeted replan goes on from where it stopped; the arm does not follow it.
+            if self.replan_pending {
+                std::mem::swap(&mut self.levels, &mut self.replanned);
+            } else {
+                self.history.rejected.push(RejectedPlan { t, reason: infeasibility(&info, &self.optimizer) });
+            }
+            return Ok(info);
+        }
         // Switch first: if that fails, the learner keeps the plan it is following.
         self.plan.switch_to(self.replanned.plan(), t, &self.speed_limits)?;
         std::mem::swap(&mut self.levels, &mut self.replanned);
-        self.replan_pending = self.params.replan_iterations > 0 && !info.converged;
         self.history.plans.push((t, self.levels.plan().to_vec()));
         Ok(info)
     }

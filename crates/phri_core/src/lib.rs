@@ -24,6 +24,7 @@ pub mod reference;
 pub mod scene;
 pub mod trajopt;
 pub mod update;
+pub mod wall;
 
 pub use data::RobotData;
 pub use error::{PhriError, Result};

@@ -1,0 +1,109 @@
+//! The run-time virtual wall: a repulsive torque in the control law that keeps every collision
+//! body of the arm at least a margin from the furniture, whatever the reference says and however
+//! the person pushes (on the table task the person pushes the cup down toward the table).
+//!
+//! Each sphere pair closer than margin + band to a piece of furniture gets a normal force
+//! F = k·(margin + band − d) + c·max(0, −ḋ) [N] along the distance's gradient, applied as the torque
+//! F·∂d/∂q. The person is not a wall: their hand touching the arm is the point of the interaction,
+//! and plans keep clear of their body.
+
+use std::sync::Arc;
+
+use crate::collision::{CollisionChecker, ProximityScratch};
+use crate::data::RobotData;
+use crate::error::{PhriError, Result};
+use crate::model::RobotModel;
+use crate::scene::{ObjectKind, Scene};
+
+/// The wall's settings; `Default` gives the documented defaults.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallParams {
+    /// Least distance kept from the furniture while the arm runs [m] (default 5 mm).
+    pub margin: f64,
+    /// The wall starts acting this much farther out [m] (default 1 cm).
+    pub band: f64,
+    /// Its stiffness k [N/m] (default 8000: 80 N at the margin, against a firm push of 30–40 N).
+    pub stiffness: f64,
+    /// Its damping c on approach [N·s/m] (default 60).
+    pub damping: f64,
+}
+
+impl Default for WallParams {
+    fn default() -> Self {
+        WallParams { margin: 0.005, band: 0.01, stiffness: 8000.0, damping: 60.0 }
+    }
+}
+
+impl WallParams {
+    fn check(&self) -> Result<()> {
+        for (arg, v) in [("wall_margin", self.margin), ("wall_band", self.band), ("wall_stiffness", self.stiffness), ("wall_damping", self.damping)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(PhriError::invalid(arg, format!("must be finite and >= 0, got {v}")));
+            }
+        }
+        if !(self.band > 0.0 && self.stiffness > 0.0) {
+            return Err(PhriError::invalid("wall_stiffness", "and wall_band must be > 0"));
+        }
+        Ok(())
+    }
+}
+
+/// What the wall did in one control step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallStatus {
+    /// Sum of the wall's normal forces [N] (0: it did not act).
+    pub force: f64,
+    /// Smallest distance of a body to the furniture within the wall's reach [m] (∞ beyond it).
+    pub distance: f64,
+}
+
+impl Default for WallStatus {
+    fn default() -> Self {
+        WallStatus { force: 0.0, distance: f64::INFINITY }
+    }
+}
+
+/// A virtual wall around the furniture of a scene, for one robot.
+#[derive(Debug, Clone)]
+pub struct VirtualWall {
+    params: WallParams,
+    checker: Arc<CollisionChecker>,
+    data: RobotData,
+    scratch: ProximityScratch,
+}
+
+impl VirtualWall {
+    /// The wall around `scene`'s furniture for `robot` (which needs a complete collision model).
+    pub fn new(robot: &RobotModel, scene: &Scene, params: WallParams) -> Result<Self> {
+        params.check()?;
+        let furniture: Vec<_> = scene.objects().iter().filter(|o| o.kind() == ObjectKind::Furniture).cloned().collect();
+        let checker = CollisionChecker::new(robot, &Scene::new(furniture)?, None)?;
+        Ok(VirtualWall { params, checker: Arc::new(checker), data: robot.data(), scratch: ProximityScratch::default() })
+    }
+
+    pub fn params(&self) -> &WallParams {
+        &self.params
+    }
+
+    /// Adds the wall's torque at (q [rad], q̇ [rad/s]) to `tau` [N·m].
+    pub fn add_torque(&mut self, robot: &RobotModel, q: &[f64], qd: &[f64], tau: &mut [f64]) -> WallStatus {
+        robot.forward_kinematics_unchecked(q, &mut self.data);
+        let p = self.params;
+        let reach = p.margin + p.band;
+        let mut status = WallStatus { force: 0.0, distance: f64::INFINITY };
+        // The checker measures from each object's planning margin + band; the wall, from its own reach.
+        self.checker.for_each_near(robot, &self.data, &mut self.scratch, reach, |near, g| {
+            if near.distance >= reach {
+                return;
+            }
+            status.distance = status.distance.min(near.distance);
+            let rate: f64 = g.iter().zip(qd).map(|(g, v)| g * v).sum();
+            let force = p.stiffness * (reach - near.distance) + p.damping * (-rate).max(0.0);
+            status.force += force;
+            for (t, g) in tau.iter_mut().zip(g) {
+                *t += force * g;
+            }
+        });
+        status
+    }
+}

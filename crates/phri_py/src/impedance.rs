@@ -10,12 +10,14 @@ use std::borrow::Cow;
 use nalgebra::DMatrix;
 use numpy::{PyArray1, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyReadonlyArray1, PyUntypedArray, PyUntypedArrayMethods};
 use phri_core::impedance::{ControlStatus, Gain, ImpedanceController, ImpedanceParams};
+use phri_core::wall::{VirtualWall, WallParams};
 use pyo3::prelude::*;
 use pyo3::Borrowed;
 
 use crate::arrays::{shape_str, vector, ArrayIn};
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{error, to_py, IntoPy, Kind};
 use crate::robot::PyRobot;
+use crate::scene::PyScene;
 
 /// A joint vector argument: borrowed when it already is a float64 1-D ndarray, converted otherwise.
 pub enum Joints<'py> {
@@ -123,6 +125,11 @@ fn gain_array<'py>(py: Python<'py>, g: &Gain) -> PyResult<Bound<'py, PyArrayDyn<
 /// semidefinite (M_R definite). K and B default to the JACO2 gains (200, 300, 150, 150, 50, 50, 30)
 /// and (20, 30, 15, 15, 5, 5, 3). `gravity_compensation` adds g(q) to eq. 6 (`torque`,
 /// `torque_implicit`); eq. 5 always includes it (feedback linearisation cancels all the dynamics).
+/// With a `scene`, a virtual wall (on unless `wall=False`) adds a repulsive torque that keeps every
+/// collision body at least `wall_margin` [m] from the scene's furniture, whatever the reference and
+/// the person's push: a normal force `wall_stiffness`·(margin + `wall_band` − d) [N, N/m, m] plus
+/// `wall_damping` [N·s/m] on approach, per sphere within reach (`wall_force`, `wall_distance` tell
+/// what it did in the last step). The person is not a wall.
 #[pyclass(name = "ImpedanceController", module = "phri._phri")]
 pub struct PyImpedanceController {
     controller: ImpedanceController,
@@ -133,13 +140,24 @@ pub struct PyImpedanceController {
 #[pymethods]
 impl PyImpedanceController {
     #[new]
-    #[pyo3(signature = (robot, *, stiffness = None, damping = None, inertia = None, gravity_compensation = true))]
+    #[pyo3(signature = (
+        robot, *, stiffness = None, damping = None, inertia = None, gravity_compensation = true, scene = None,
+        wall = true, wall_margin = WallParams::default().margin, wall_band = WallParams::default().band,
+        wall_stiffness = WallParams::default().stiffness, wall_damping = WallParams::default().damping
+    ))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
         robot: PyRef<'_, PyRobot>,
         stiffness: Option<ArrayIn<'_>>,
         damping: Option<ArrayIn<'_>>,
         inertia: Option<ArrayIn<'_>>,
         gravity_compensation: bool,
+        scene: Option<PyRef<'_, PyScene>>,
+        wall: bool,
+        wall_margin: f64,
+        wall_band: f64,
+        wall_stiffness: f64,
+        wall_damping: f64,
     ) -> PyResult<Self> {
         let model = robot.model.clone();
         let n = model.nq();
@@ -158,7 +176,17 @@ impl PyImpedanceController {
             inertia: inertia.map(|g| gain("inertia", Some(g), n, Gain::Diagonal(vec![]))).transpose()?,
             gravity_compensation,
         };
-        let controller = ImpedanceController::new(model, params).py_err()?;
+        let mut controller = ImpedanceController::new(model.clone(), params).py_err()?;
+        if let (Some(scene), true) = (&scene, wall) {
+            let params = WallParams { margin: wall_margin, band: wall_band, stiffness: wall_stiffness, damping: wall_damping };
+            let wall = VirtualWall::new(&model, &scene.scene, params).map_err(|e| match e {
+                phri_core::PhriError::Planning { reason } => {
+                    error(Kind::Planning, format!("{reason}; pass wall=False to run without the virtual wall"))
+                }
+                other => to_py(other),
+            })?;
+            controller.set_wall(Some(wall));
+        }
         Ok(PyImpedanceController { controller, status: ControlStatus::default(), tau: vec![0.0; n] })
     }
 
@@ -233,6 +261,25 @@ impl PyImpedanceController {
             *status = controller.torque_full(&q, &qd, &q_ref, &qd_ref, &qdd_ref, &u_h, tau).py_err()?;
             Ok(())
         })
+    }
+
+    /// Sum of the virtual wall's normal forces in the last step [N] (0: it did not act, or no wall).
+    #[getter]
+    fn wall_force(&self) -> f64 {
+        self.status.wall.force
+    }
+
+    /// Smallest distance of a collision body to the furniture within the wall's reach in the last
+    /// step [m] (inf beyond it, or without a wall).
+    #[getter]
+    fn wall_distance(&self) -> f64 {
+        self.status.wall.distance
+    }
+
+    /// The wall's margin [m], or None without a wall.
+    #[getter]
+    fn wall_margin(&self) -> Option<f64> {
+        self.controller.wall().map(|w| w.params().margin)
     }
 
     /// Bit j set when joint j was clipped to its effort limit in the last successful step.

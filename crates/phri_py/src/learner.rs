@@ -187,7 +187,9 @@ impl PyLearner {
 /// or too close to the end); `weights` (M, K) the cost weights after the update; `moved` (M,) the
 /// waypoints the deformation moved; `updates` and `replans` (M,) what the update and the replan did
 /// (None where there was none). `plan_t` (P,) the time each plan took effect [s] and `plans`
-/// (P, N, n) the plans [rad]; the first is the initial plan at t = 0.
+/// (P, N, n) the plans [rad]; the first is the initial plan at t = 0. `rejected_t` (R,) the times of
+/// replans that were not adopted because they were infeasible (the robot kept tracking its last
+/// feasible plan) [s], and `rejected` (R,) why, naming the violated pair.
 #[pyclass(name = "LearnerHistory", module = "phri._phri", frozen, get_all)]
 pub struct PyLearnerHistory {
     t: Py<PyArray1<f64>>,
@@ -199,6 +201,8 @@ pub struct PyLearnerHistory {
     replans: Vec<Option<PyTrajoptInfo>>,
     plan_t: Py<PyArray1<f64>>,
     plans: Py<PyArray3<f64>>,
+    rejected_t: Py<PyArray1<f64>>,
+    rejected: Vec<String>,
 }
 
 impl PyLearnerHistory {
@@ -235,6 +239,8 @@ impl PyLearnerHistory {
             replans: records.iter().map(|r| r.replan.map(PyTrajoptInfo::from)).collect(),
             plan_t: PyArray1::from_iter(py, plans.iter().map(|(t, _)| *t)).unbind(),
             plans: PyArray1::from_vec(py, plan_values).reshape([plans.len(), waypoints, n])?.unbind(),
+            rejected_t: PyArray1::from_iter(py, history.rejected.iter().map(|r| r.t)).unbind(),
+            rejected: history.rejected.iter().map(|r| r.reason.clone()).collect(),
         })
     }
 }

@@ -186,6 +186,7 @@ impl PyTrajectoryOptimizer {
             kinematic_curvature,
             coarsening,
             coarsest,
+            collision: None,
         };
         let optimizer = TrajectoryOptimizer::new(&set, waypoints, params).py_err()?;
         Ok(PyTrajectoryOptimizer { optimizer, features: set })

@@ -52,15 +52,9 @@ __all__ = [
 STRATEGIES = ("impedance", "learning")
 #: Update rules of phri.WeightUpdate (their one home is the core).
 RULES = UPDATE_RULES
-#: The tool point stays this far above the table top (the original kept a finger above z = 0) [m].
-HAND_CLEARANCE = 0.1016
-#: The features' point (the cup: link_7's origin on the JACO2) stays this far above the table top [m].
-CUP_CLEARANCE = 0.06
-#: Plans move each joint at most this fraction of its velocity limit (between waypoints).
+#: Plans move each joint at most this fraction of its velocity limit (a margin for tracking).
 VELOCITY_MARGIN = 0.5
-#: A plan may exceed its joint step by this fraction (the quadratic penalty's give at an optimum) [-].
-STEP_TOLERANCE = 0.05
-#: A plan may dip below its clearance by this much (the penalty's documented tolerance) [m].
+#: A plan may come this much closer than a margin (TrajoptInfo.feasible's tolerance) [m].
 CLEARANCE_TOLERANCE = 1e-3
 #: The JACO2's joint count: the length of every per-joint setting below.
 JOINTS = 7
@@ -182,6 +176,12 @@ class EpisodeResult:
     #: Largest distance of the hand from its reference while nobody touches it, at the log rate [m]
     #: (includes the spring-back after a push; see tests for tracking with no participant at all).
     tracking_error: float
+    #: Smallest distance of any collision body of the arm (or the cup) to any scene object over
+    #: the episode, at the log rate [m].
+    min_clearance: float
+    #: Time the virtual wall acted [s] and its largest total force [N] (0: it never acted).
+    wall_contact_time: float
+    wall_peak_force: float
     wall_time: float
     log: Path | None = None
     frames: list[Path] = field(default_factory=list)
@@ -202,62 +202,52 @@ class EpisodeResult:
             "desired_cost": self.desired_cost,
             "final_weight": float(self.final_weights[self.task_index]),
             "tracking_error": self.tracking_error,
+            "min_clearance": self.min_clearance,
+            "wall_contact_time": self.wall_contact_time,
             "wall_time": self.wall_time,
         }
 
 
 class Planner:
-    """The task's features and optimiser, and the plans for its initial and true weights."""
+    """The task's features and optimiser, and the plans for its initial and true weights.
+
+    The optimiser keeps every collision body of the arm and the cup at least each scene object's
+    margin from it (and from each other) along the executed curve, and each joint within
+    VELOCITY_MARGIN of its velocity limit: the safe defaults of TrajectoryOptimizer for a task."""
 
     def __init__(self, task: Task, world: World) -> None:
         self.task = task
         self.features = task.feature_set(world.model)
-        #: Height of the table's top [m], which the hand and the cup stay above (None: no table in
-        #: the task's scene, so no clearance).
-        table = task.scene.get(TABLE)
-        self.table_top = None if table is None else table.top
-        clearance = (
-            []
-            if self.table_top is None
-            else [
-                (HAND, self.table_top + HAND_CLEARANCE),
-                (self.features.frame, self.table_top + CUP_CLEARANCE),
-            ]
-        )
-        # Joint speeds within the arm's limits, with a margin for tracking.
-        spacing = task.duration / (task.waypoints - 1)
-        max_step = VELOCITY_MARGIN * world.model.velocity_limits * spacing
-        self.optimizer = TrajectoryOptimizer(
-            self.features, task.waypoints, clearance=clearance, max_step=max_step
-        )
         world.model.check_limits(task.start)
         world.model.check_limits(task.goal)
-        self.max_step = max_step
+        self.optimizer = TrajectoryOptimizer(
+            self.features, task.waypoints, duration=task.duration, speed_fraction=VELOCITY_MARGIN
+        )
         self.desired, info = self.optimizer.solve(task.vector("true"), task.start, task.goal)
-        self.check(self.desired, info, "true")
+        self.check(info, "true")
         self.desired_cost = float(self.features.phi(self.desired)[task.task_index])
 
-    def check(self, plan: np.ndarray, info: TrajoptInfo, weights: str) -> None:
-        """Raises PlanningError, naming the task file and the cause, unless `plan` (for the task's
-        `weights` weights) keeps to the joint speeds and the clearance."""
+    def check(self, info: TrajoptInfo, weights: str) -> None:
+        """Raises PlanningError, naming the task file, the cause and the violated pair, unless the
+        plan just made (for the task's `weights` weights) is feasible and converged."""
         task = self.task
-        excess = np.abs(np.diff(plan, axis=0)) - self.max_step
-        i, j = np.unravel_index(np.argmax(excess / self.max_step), excess.shape)
         if info.max_violation > CLEARANCE_TOLERANCE:
-            raise PlanningError(
-                f"{task.source}: the plan for the {weights} weights cannot keep the hand "
-                f"{HAND_CLEARANCE} m and the cup {CUP_CLEARANCE} m above the table top "
-                f"(z = {self.table_top} m): it dips {info.max_violation:.3f} m below; "
-                f"check start, goal and [scene.{TABLE}]"
+            pair = self.optimizer.closest_pair
+            what = (
+                f"'{pair[0]}' comes within {pair[2]:.3f} m of '{pair[1]}' (margin {pair[3]:.3f} m)"
+                if pair is not None
+                else f"a margin is violated by {info.max_violation:.3f} m"
             )
-        if excess[i, j] > STEP_TOLERANCE * self.max_step[j]:
-            needed = task.duration * (1 + excess[i, j] / self.max_step[j])
-            step = abs(plan[i + 1, j] - plan[i, j])
+            raise PlanningError(
+                f"{task.source}: the plan for the {weights} weights cannot keep the arm clear: {what}; "
+                f"check start, goal and [scene]"
+            )
+        if not info.feasible:
             raise PlanningError(
                 f"{task.source}: the goal is too far from the start for duration = {task.duration:g} s: "
-                f"the plan for the {weights} weights moves joint {j} by {step:.3f} rad between waypoints "
-                f"{i} and {i + 1}, more than {VELOCITY_MARGIN:g} × its velocity limit allows "
-                f"({self.max_step[j]:.3f} rad); make the task last about {needed:.0f} s or move the goal"
+                f"the plan for the {weights} weights moves a joint {info.max_step_excess:.3f} rad per "
+                f"segment faster than {VELOCITY_MARGIN:g} × its velocity limit allows; make the task "
+                f"last longer or move the goal"
             )
         if not info.converged:
             raise PlanningError(
@@ -335,7 +325,8 @@ def _set_up(
     desired = TimedTrajectory(planner.desired, task.duration)
     person = Participant(participant_params, desired, task.task_feature, model, person_rng, dt=dt)
     bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
-    controller = ImpedanceController(model)
+    # The virtual wall keeps every body clear of the furniture at run time, however the person pushes.
+    controller = ImpedanceController(model, scene=task.scene)
     return _Parts(planner, learner, controller, person, sensor_rng, bias, sample_every, log_every)
 
 
@@ -349,6 +340,9 @@ class _Trace:
     rows: int = 0
     #: Largest hand-to-reference distance while nobody touches the hand [m].
     tracking_error: float = 0.0
+    #: Control ticks at which the virtual wall acted, and its largest total force [N].
+    wall_ticks: int = 0
+    wall_peak_force: float = 0.0
     frames: list[Path] = field(default_factory=list)
     #: What stopped the loop early (None: it ran to the end of the task).
     error: BaseException | None = None
@@ -370,7 +364,10 @@ def _simulate(
     series = {k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")}
     #: The person's wrench at the hand (force [N], torque [N·m]); zero while nobody touches it.
     series["push"] = np.zeros((rows, 6))
+    #: The virtual wall's largest total force since the previous row [N] (0: it did not act).
+    series["wall_force"] = np.zeros(rows)
     trace = _Trace(np.zeros(rows), series)
+    wall_force = 0.0
     learner, person = parts.learner, parts.person
     world.set_scene(task.scene)
     world.reset(task.start)
@@ -394,8 +391,15 @@ def _simulate(
                 learner.observe(t, measured)
             q_ref, qd_ref, _ = learner.reference(t, out=reference)
             parts.controller.torque_implicit(q, qd, q_ref, qd_ref, dt, out=tau)
+            force = parts.controller.wall_force
+            if force > 0.0:
+                trace.wall_ticks += 1
+                trace.wall_peak_force = max(trace.wall_peak_force, force)
+                wall_force = max(wall_force, force)
             if k % parts.log_every == 0:
                 _log_row(trace, model, t, push, q=q, qd=qd, q_ref=q_ref, tau=tau, u_h=measured)
+                trace.series["wall_force"][trace.rows - 1] = wall_force
+                wall_force = 0.0
             if k in frame_ticks and frame_prefix is not None:
                 trace.frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
             if push is None:
@@ -436,6 +440,8 @@ def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndar
         "weights": np.vstack([initial_weights, history.weights]),
         "plan_t": history.plan_t,
         "plans": history.plans,
+        "rejected_t": history.rejected_t,
+        "rejected": np.array(history.rejected, dtype=str),
     }
 
 
@@ -460,6 +466,8 @@ def _score(
     phi = planner.features.phi(executed)
     frame = planner.features.frame
     rows = trace.rows
+    # Each collision body's smallest distance to each scene object at every log row [m].
+    distances = model.scene_distances(trace.series["q"][:rows], task.scene)
     return EpisodeResult(
         task=task.name,
         strategy=config.strategy,
@@ -471,6 +479,9 @@ def _score(
         final_weights=parts.learner.weights,
         task_index=task.task_index,
         tracking_error=trace.tracking_error,
+        min_clearance=float(distances.min()) if distances.size else math.inf,
+        wall_contact_time=trace.wall_ticks * dt,
+        wall_peak_force=trace.wall_peak_force,
         wall_time=0.0,
         executed_path=model.frame_pose(frame, executed)[:, :3, 3],
         desired_path=model.frame_pose(frame, planner.desired)[:, :3, 3],
@@ -478,6 +489,8 @@ def _score(
         log_arrays={
             "t": trace.t[:rows], **{k: v[:rows] for k, v in trace.series.items()}, **history,
             "desired": planner.desired, "feature_names": np.array(task.feature_names),
+            "distances": distances, "body_names": np.array(model.collision_bodies),
+            "object_names": np.array(task.scene.names),
         },
     )  # fmt: skip
 

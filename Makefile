@@ -1,4 +1,4 @@
-# phri: the README's commands are targets here; CI runs `make test`.
+# phri: the README's commands are targets here; CI (.ci/run) runs `make lint` and `make test`.
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip
@@ -16,9 +16,9 @@ $(PY):
 
 $(DEPS): pyproject.toml | $(PY)
 	$(PIP) install --quiet --upgrade pip
-	$(PIP) install --quiet "maturin>=1.7,<2" "numpy>=1.24" "pytest>=8" "pybullet>=3.2.6" "scipy>=1.11" \
+	$(PIP) install --quiet "maturin>=1.9,<2" "numpy>=1.24" "pytest>=8" "pybullet>=3.2.6" "scipy>=1.11" \
 		"matplotlib>=3.8" "pandas>=2.1" "pyarrow>=14" "statsmodels>=0.14" "tqdm>=4.66" "ray>=2.9" \
-		"ruff>=0.6" "mypy>=1.10"
+		"pyyaml>=6" "ruff>=0.6" "mypy>=1.10"
 	touch $@
 
 $(BUILT): $(DEPS) $(CARGO_SOURCES) pyproject.toml
@@ -38,11 +38,12 @@ test-python: $(BUILT)  ## pytest (includes the PyBullet comparisons)
 
 test: test-rust test-python  ## Everything CI runs
 
-lint: $(BUILT)  ## rustfmt, clippy, ruff, and the stub check
+lint: $(BUILT)  ## rustfmt, clippy, ruff, mypy, and the stub check
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -- -D warnings
 	$(VENV)/bin/ruff check python tests benches
 	$(VENV)/bin/ruff format --check python tests benches
+	$(PY) -m mypy python/phri
 	$(PY) -m mypy.stubtest phri._phri --allowlist .stubtest-allowlist
 
 bench:  ## Criterion benchmarks (median and worst case)

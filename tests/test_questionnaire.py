@@ -222,6 +222,23 @@ def test_table1_matches_paired_t_tests() -> None:
         q.table1(responses.assign(strategy="telepathy"))
 
 
+def test_table1_without_error_variance_is_not_estimable() -> None:
+    """Every participant rates learning the same amount above impedance: the ANOVA's error term has no
+    variance, and Table 1 says "not estimable" instead of an F."""
+    answers = synthetic(4)
+    learning = answers["strategy"] == "learning"
+    answers.loc[learning, "q1"] = 6
+    answers.loc[~learning, "q1"] = 3
+    for i in (2, 3, 4):  # the understanding scale: the same for everyone, per strategy
+        answers[f"q{i}"] = answers["q1"] if i not in q.REVERSED else 8 - answers["q1"]
+    t1 = q.table1(answers).set_index("scale")
+    assert not t1.loc["understanding", "estimable"] and np.isnan(t1.loc["understanding", "F"])
+    assert t1.drop(index="understanding")["estimable"].all()
+    text = q.table1_markdown(t1.reset_index())
+    row = next(line for line in text.splitlines() if line.startswith("| understanding"))
+    assert "| not estimable | — | — |" in row
+
+
 def test_cli_import_and_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run_dir = study_folder(tmp_path / "study")
     source = tmp_path / "answers.csv"

@@ -726,6 +726,76 @@ def test_rm_anova_leaves_out_incomplete_participants_and_degenerate_cases() -> N
     assert analysis.rm_anova(data[data["strategy"] == "learning"], "y", within=("strategy",)).empty
 
 
+def _no_error_variance(noise: float = 0.0, seed: int = 0) -> pd.DataFrame:
+    """Two participants whose value is the same in every cell but for a learning bump (+ `noise`):
+    the repeated-measures error terms have no variance."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for p, base in ((1, 12.3), (2, 7.1)):
+        for s in ("impedance", "learning"):
+            for a in (1, 2):
+                y = base + (0.7 if s == "learning" else 0.0) + noise * rng.normal()
+                rows.append({"participant": p, "strategy": s, "attempt": a, "task": "laptop", "y": y})
+    return pd.DataFrame(rows)
+
+
+def test_a_test_without_error_variance_is_not_estimable() -> None:
+    """statsmodels gives such a table F(1, 1) = −2e29, inf and −0.16; phri reports no number."""
+    from statsmodels.stats.anova import AnovaRM
+
+    data = _no_error_variance()
+    with np.errstate(all="ignore"):  # statsmodels divides by zero
+        raw = AnovaRM(data, "y", "participant", within=["strategy", "attempt"]).fit().anova_table
+    assert not (np.isfinite(raw["F Value"]) & (raw["F Value"] >= 0)).all()  # what it would print
+    rm = analysis.rm_anova(data, "y")
+    assert list(rm["estimable"]) == [False] * 3
+    assert rm[["F", "p", "partial_eta_sq"]].isna().all().all()
+    assert list(rm["df2"]) == [1.0] * 3  # the degrees of freedom stay: they say why
+    # Rounding-level noise (1e-13 of the values) is no variance either: F would be absurdly large.
+    assert not analysis.rm_anova(_no_error_variance(1e-13), "y")["estimable"].any()
+    # Real noise is a real test.
+    real = analysis.rm_anova(_no_error_variance(1e-3), "y")
+    assert real["estimable"].all() and np.isfinite(real["F"]).all()
+    # The pooled ANOVA: y fixed by strategy alone leaves no residual.
+    exact = data.assign(y=np.where(data["strategy"] == "learning", 3.0, 1.0))
+    pooled = analysis.factorial_anova(exact, "y")
+    assert not pooled["estimable"].any() and pooled["F"].isna().all()
+    assert analysis.factorial_anova(_two_by_two(np.random.default_rng(1), 6), "y")["estimable"].all()
+    # The report writes "not estimable", never a number, and no asterisk goes into a figure.
+    from phri.study import figures
+    from phri.study.report import _anova_md
+
+    text = _anova_md(rm)
+    assert text.count("F(1, 1): not estimable") == 3 and "e+" not in text and "nan" not in text.lower()
+    assert "error term has no variance" in text
+    tests = rm.assign(task="laptop", measure="effort", p=1e-20)  # a p that would get an asterisk
+    assert np.isnan(figures._star_p(tests, "laptop", "effort"))
+    assert figures._star_p(tests.assign(estimable=True), "laptop", "effort") == 1e-20
+
+
+def test_the_latex_tables_escape_text_and_symbols() -> None:
+    from phri.study import latex
+
+    assert latex.escape("partial η² ± 5 % of |cost − desired| & a_b < .0001") == (
+        r"partial $\eta$\textsuperscript{2} $\pm$ 5 \% of \textbar{}cost $-$ desired\textbar{} \& a\_b "
+        r"\textless{} .0001"
+    )
+    text = latex.table(["a", "b"], [["1", "x_y"]])
+    assert text.splitlines() == [
+        r"\begin{tabular}{ll}", r"\toprule", r"a & b \\", r"\midrule", r"1 & x\_y \\", r"\bottomrule",
+        r"\end{tabular}",
+    ]  # fmt: skip
+
+
+def test_the_report_states_the_studys_sample_rate() -> None:
+    from phri.study.report import _introduction
+
+    config = dataclasses.replace(TINY, sample_rate=20.0)
+    raw = pd.DataFrame({"status": ["ok"] * 3})
+    text = "\n".join(_introduction(Path("s"), config, {}, raw))
+    assert "sampled at 20 Hz" in text and "1/20 Hz = 0.05 s" in text and "10 Hz" not in text
+
+
 def test_rm_anova_averages_only_tasks_present_in_every_cell() -> None:
     """A participant without task B under one strategy: B (much harder) is left out of all of that
     participant's cells, so it does not pass for a strategy effect."""
@@ -795,11 +865,20 @@ def test_report(reference: Path, tmp_path: Path) -> None:
     needles = ("Per task and strategy", "F(1, ", "AnovaRM", "partial η²", "|cost − desired cost|", "Cronbach")
     for needle in (*needles, "fig4_effort_time.png", "fig5_cost.png", "fig5_paths.png", "Table 1"):
         assert needle in text, needle
-    for name in ("fig4_effort_time.png", "fig5_cost.png", "fig5_paths.png"):
-        width, height = _png_size(tmp_path / "report" / name)
+    for name in ("fig4_effort_time", "fig5_cost", "fig5_paths"):
+        width, height = _png_size(tmp_path / "report" / f"{name}.png")
         assert width > 600 and height > 300
-    for name in ("descriptives.csv", "anova_pooled.csv", "anova_rm.csv", "anova_by_task.csv", "table1.csv"):
-        assert (tmp_path / "report" / name).is_file()
+        assert (tmp_path / "report" / f"{name}.pdf").read_bytes()[:5] == b"%PDF-"
+    for name in ("descriptives", "anova_pooled", "anova_rm", "anova_by_task", "table1"):
+        assert (tmp_path / "report" / f"{name}.csv").is_file()
+        tex = (tmp_path / "report" / f"{name}.tex").read_text()
+        assert tex.startswith("\\begin{tabular}") and tex.isascii(), name
+        assert f"`{name}.tex`" in text
+    # TINY's rate and log rate, not fixed numbers; its 2 participants are too few to test.
+    assert "sampled at 10 Hz" in text and "from the episode logs (100 Hz)" in text
+    assert "## Warnings" in text and "The study has 2 participant(s), fewer than 3: too few to test" in text
+    rm = pd.read_csv(tmp_path / "report" / "anova_rm.csv")
+    assert set(rm["df2"]) == {1.0} and "estimable" in rm
     pooled = pd.read_csv(tmp_path / "report" / "anova_pooled.csv")
     # TINY's experimental trials: 2 participants × 1 task × 2 strategies × 2 attempts = 8 → F(1, 4),
     # and the report says so rather than claiming the paper's form.
@@ -948,6 +1027,10 @@ def test_cli_study_resume_and_report(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert "8 of 8 episodes" in capsys.readouterr().out
     assert cli(["report", run_dir]) == 0
     assert (tmp_path / "s" / "report" / "report.md").is_file()
+    # The design warning also goes to the log (stderr), unless -qq.
+    assert "WARNING: " in capsys.readouterr().err
+    assert cli(["-qq", "report", run_dir]) == 0
+    assert "WARNING" not in capsys.readouterr().err
 
 
 def test_errors_are_phri_errors() -> None:

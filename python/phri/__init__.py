@@ -6,6 +6,8 @@ Physical Human Interaction" (CoRL 2017), with a Rust core. Units are SI: m, rad,
 
 from __future__ import annotations
 
+import logging
+
 from phri import exceptions
 from phri._phri import (
     Deformation,
@@ -26,6 +28,9 @@ from phri._phri import (
     relevance,
 )
 from phri.config import Task, load_task, task_names
+
+# phri logs to the "phri" logger tree and leaves where it goes to the application (the CLI: stderr).
+logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 __all__ = [
     "Deformation",

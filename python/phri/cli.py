@@ -1,17 +1,68 @@
-"""The ``phri`` command line."""
+"""The ``phri`` command line (also ``python -m phri``).
+
+Global options: ``--version``; ``-v``/``-q`` (repeatable) raise or lower what phri's ``logging``
+shows on stderr (default: info and above; ``-q`` also hides the progress bar). Results go to stdout.
+"""
 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 from phri.exceptions import PhriError
 
-__all__ = ["main"]
+__all__ = ["add_global_options", "build_parser", "configure_logging", "main"]
+
+
+class _Stderr(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is when a record comes (tests and tools replace it)."""
+
+    @property
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: object) -> None:
+        pass
+
+
+#: The handler :func:`configure_logging` put on the "phri" logger (replaced by the next call).
+_handler: logging.Handler | None = None
+
+
+def add_global_options(parser: argparse.ArgumentParser) -> None:
+    """``--version``, ``-v``/``--verbose`` and ``-q``/``--quiet`` on `parser`."""
+    from phri import __version__
+
+    parser.add_argument("--version", action="version", version=f"phri {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="show more of phri's log (-v: debug)")  # fmt: skip
+    parser.add_argument("-q", "--quiet", action="count", default=0,
+                        help="show less: -q warnings only and no progress bar, -qq errors only")  # fmt: skip
+
+
+def configure_logging(verbose: int = 0, quiet: int = 0) -> int:
+    """Sends the "phri" logger's records to stderr from the level INFO + 10·(`quiet` − `verbose`)
+    (clamped to DEBUG..CRITICAL) on; returns that level. Each call replaces the previous one's handler."""
+    global _handler
+    level = min(max(logging.INFO + 10 * (quiet - verbose), logging.DEBUG), logging.CRITICAL)
+    logger = logging.getLogger("phri")
+    if _handler is not None:
+        logger.removeHandler(_handler)
+    _handler = _Stderr()
+    _handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+    logger.addHandler(_handler)
+    logger.setLevel(level)
+    return level
 
 
 def _demo(args: argparse.Namespace) -> int:
+    from phri._extras import check_part
+
+    check_part("the demo")
     from phri.demo import run_demo
 
     run_demo(Path(args.out), seed=args.seed, gui=args.gui, frames=not args.no_frames)
@@ -31,6 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="phri", description="Learning robot objectives from physical human interaction."
     )
+    add_global_options(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the four study tasks, both strategies, one simulated participant")
     demo.add_argument("--out", default="out/demo", help="output folder (a fresh one is made if it exists)")
@@ -48,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(args.verbose, args.quiet)
     try:
         return int(args.run(args))
     except PhriError as e:

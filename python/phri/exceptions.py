@@ -10,6 +10,7 @@ from __future__ import annotations
 __all__ = [
     "ConfigError",
     "InvalidParameterError",
+    "MissingExtraError",
     "NonFiniteError",
     "NotConvergedError",
     "PhriError",
@@ -52,6 +53,12 @@ class ConfigError(PhriError, ValueError):
 class PlanningError(PhriError, ValueError):
     """A task that cannot be planned as asked: its goal too far from its start for its duration at the
     allowed joint speeds, or its clearance above the table out of reach."""
+
+
+class MissingExtraError(PhriError, ImportError):
+    """An optional dependency is not installed; the message names the ``pip install 'phri[...]'``
+    that installs it (e.g. ``phri[sim]`` for PyBullet). ``import phri`` and the core API need numpy
+    only."""
 
 
 class NotConvergedError(PhriError, RuntimeError):

@@ -18,18 +18,32 @@ feature's value from that of the optimal trajectory).
 
 Effect sizes are partial η² = SS_effect / (SS_effect + SS_error); for the repeated-measures ANOVA,
 whose table gives F and the degrees of freedom only, the identical F·df₁ / (F·df₁ + df₂).
+
+A test is *not estimable* (column ``estimable`` False; F, p and partial η² NaN, never a number) when
+its error term has no variance: zero up to floating-point rounding (:data:`ROUNDING`), as when every
+participant's value is the same in each cell. Its F is then 0/0 or x/0 evaluated in floating point:
+NaN, infinite, negative or absurdly large (F(1, 1) = −2·10³¹ or 7.9·10¹⁷), never a statistic.
 """
 
 from __future__ import annotations
 
+import itertools
 import warnings
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+from phri._extras import require
+
+if TYPE_CHECKING:
+    import pandas as pd
+else:
+    pd = require("pandas", __name__)
 
 __all__ = [
     "MEASURES",
+    "ROUNDING",
     "descriptives",
     "factorial_anova",
     "matched_tasks",
@@ -44,7 +58,10 @@ MEASURES: dict[str, str] = {
     "interaction_time": "interaction time [s]",
     "cost_error": "|cost − desired cost|",
 }
-ANOVA_COLUMNS = ["measure", "effect", "df1", "df2", "F", "p", "partial_eta_sq"]
+ANOVA_COLUMNS = ["measure", "effect", "df1", "df2", "F", "p", "partial_eta_sq", "estimable"]
+#: An error sum of squares over n observations is taken for zero (rounding residue, not variance)
+#: when its root mean square, √(SS/n), is at most this fraction of the data's largest magnitude.
+ROUNDING = 1e-9
 
 
 def prepare(table: pd.DataFrame) -> pd.DataFrame:
@@ -74,6 +91,40 @@ def _partial_eta_sq(f: float, df1: float, df2: float) -> float:
     return float(f * df1 / (f * df1 + df2)) if np.isfinite(f) else float("nan")
 
 
+def _row(
+    measure: str, effect: str, df1: float, df2: float, f: float, p: float, eta: float, error_zero: bool
+) -> list[object]:
+    """A row of an ANOVA table; a test that is not estimable (its error term without variance, or F,
+    p or the degrees of freedom unusable) gets NaN for F, p and partial η²."""
+    estimable = not error_zero and df1 > 0 and df2 > 0 and np.isfinite(f) and f >= 0 and 0 <= p <= 1
+    if not estimable:
+        f = p = eta = float("nan")
+    return [measure, effect, df1, df2, f, p, eta, bool(estimable)]
+
+
+def _zero_ss(ss: float, n: int, values: np.ndarray) -> bool:
+    """Whether the sum of squares `ss` over `n` observations of `values` is zero up to rounding
+    (NaN counts as zero)."""
+    finite = values[np.isfinite(values)]
+    scale = float(np.abs(finite).max()) if finite.size else 0.0
+    return not ss > n * (ROUNDING * scale) ** 2
+
+
+def _interaction_ss(cells: pd.DataFrame, value: str, factors: Sequence[str]) -> float:
+    """The sum of squares of the interaction of `factors` (the main effect for one) over the rows of
+    the balanced table `cells`: Σ over rows of (Σ over subsets U of the factors of
+    (−1)^(|factors| − |U|) · mean of `value` over the rows sharing the row's levels of U)²."""
+    y = cells[value].to_numpy(float)
+    term = np.zeros_like(y)
+    for k in range(len(factors) + 1):
+        for subset in itertools.combinations(factors, k):
+            means = (
+                cells.groupby(list(subset))[value].transform("mean").to_numpy(float) if subset else y.mean()
+            )
+            term += (-1) ** (len(factors) - k) * means
+    return float((term**2).sum())
+
+
 def _factors(data: pd.DataFrame, factors: Sequence[str]) -> list[str]:
     """The factors that have at least two levels in `data`."""
     return [f for f in factors if data[f].nunique() > 1]
@@ -84,8 +135,8 @@ def factorial_anova(
 ) -> pd.DataFrame:
     """Between-factors ANOVA (statsmodels OLS, type II sums of squares) of `measure` over the rows of
     `data` — pass the pooled trials of the experimental tasks for the paper's F(1, 116) analysis."""
-    import statsmodels.formula.api as smf
-    from statsmodels.stats.anova import anova_lm
+    smf = require("statsmodels.formula.api", __name__)
+    anova_lm = require("statsmodels.stats.anova", __name__).anova_lm
 
     used = _factors(data, factors)
     if not used or len(data) <= 2 ** len(used):
@@ -96,12 +147,14 @@ def factorial_anova(
         model = smf.ols(formula, data=data.astype({f: str for f in used})).fit()
         table = anova_lm(model, typ=2)
     ss_error, df_error = float(table.loc["Residual", "sum_sq"]), float(table.loc["Residual", "df"])
+    error_zero = _zero_ss(ss_error, len(data), data[measure].to_numpy(float))
     rows = []
     for effect, r in table.drop(index="Residual").iterrows():
         ss = float(r["sum_sq"])
         eta = ss / (ss + ss_error) if ss + ss_error > 0 else float("nan")
         name = str(effect).replace("C(", "").replace(")", "")
-        rows.append([measure, name, float(r["df"]), df_error, float(r["F"]), float(r["PR(>F)"]), eta])
+        f, p = float(r["F"]), float(r["PR(>F)"])
+        rows.append(_row(measure, name, float(r["df"]), df_error, f, p, eta, error_zero))
     return pd.DataFrame(rows, columns=ANOVA_COLUMNS)
 
 
@@ -139,7 +192,7 @@ def rm_anova(
     factors `within` (those with a single level are dropped). Each subject's observations per cell are
     averaged first over the levels of `over` (tasks) that the subject has in every cell (see
     :func:`matched_tasks`). Subjects missing a cell (failed episodes) are left out."""
-    from statsmodels.stats.anova import AnovaRM
+    AnovaRM = require("statsmodels.stats.anova", __name__).AnovaRM
 
     data = data[data[measure].notna()]
     used = _factors(data, within)
@@ -155,10 +208,15 @@ def rm_anova(
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)
         table = AnovaRM(cells, measure, subject, within=list(used)).fit().anova_table
+    values = cells[measure].to_numpy(float)
     rows = []
     for effect, r in table.iterrows():
         f, df1, df2 = float(r["F Value"]), float(r["Num DF"]), float(r["Den DF"])
-        rows.append([measure, str(effect), df1, df2, f, float(r["Pr > F"]), _partial_eta_sq(f, df1, df2)])
+        # The effect's error term is its interaction with the subject.
+        error_ss = _interaction_ss(cells, measure, [*str(effect).split(":"), subject])
+        eta = _partial_eta_sq(f, df1, df2)
+        rows.append(_row(measure, str(effect), df1, df2, f, float(r["Pr > F"]), eta,
+                         _zero_ss(error_ss, len(cells), values)))  # fmt: skip
     return pd.DataFrame(rows, columns=ANOVA_COLUMNS)
 
 

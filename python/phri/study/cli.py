@@ -9,16 +9,19 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import signal
 import sys
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from phri._phri import UPDATE_RULES
 from phri.exceptions import PhriError
 
 __all__ = ["main", "register"]
+
+logger = logging.getLogger(__name__)
 
 _STUDY_KEYS = (
     "participants", "attempts", "seed", "tasks", "familiarization", "duration", "waypoints",
@@ -37,9 +40,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="run (or resume) the simulated user study into a folder",
         description="Runs the paper's user study with simulated participants into RUN_DIR: per participant "
         "and strategy (order counterbalanced) the familiarization task then tasks 1-3, each attempted twice. "
-        "Writes results.csv/results.parquet (a row per episode) and logs/*.npz as it goes; running it "
-        "again on the same folder resumes where it stopped. Without study options, a folder's own study "
-        "is resumed.",
+        "Writes results.csv (a row per episode; also results.parquet with phri[parquet]) and logs/*.npz as "
+        "it goes; running it again on the same folder resumes where it stopped. Without study options, a "
+        "folder's own study is resumed.",
     )
     s.add_argument("run_dir", type=Path, help="study folder (created if missing)")
     g = s.add_argument_group("the study (defaults: the paper's)")
@@ -80,16 +83,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     x.add_argument("--allow-version-change", action="store_true",
                    help="resume a folder that another phri version started (its table then mixes "
                    "versions; the default is to refuse)")  # fmt: skip
-    x.add_argument("--no-progress", action="store_true", help="no progress bar")
+    x.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (it is shown only on a terminal, and not with -q)")  # fmt: skip
     s.set_defaults(run=cmd_study)
 
     r = subparsers.add_parser(
         "report",
         help="statistics, figures and a Markdown report of a study folder",
         description="Analyses RUN_DIR: mean and SD per task and strategy, the paper's factorial ANOVA and a "
-        "repeated-measures ANOVA with effect sizes, Fig. 4 and 5 as PNG, Table 1 if questionnaire answers "
-        "exist. Writes a new folder RUN_DIR/report (RUN_DIR/report-2, -3, ... if it exists: an earlier "
-        "report is never overwritten) holding report.md.",
+        "repeated-measures ANOVA with effect sizes (a test without error variance is reported as not "
+        "estimable; a design too small to test gets a warning), Fig. 4 and 5 as PNG and PDF, the tables as "
+        "CSV and LaTeX, Table 1 if questionnaire answers exist. Writes a new folder RUN_DIR/report "
+        "(RUN_DIR/report-2, -3, ... if it exists: an earlier report is never overwritten) holding report.md.",
     )
     r.add_argument("run_dir", type=Path, help="study folder written by `phri study`")
     r.add_argument(
@@ -163,31 +168,44 @@ def _sigterm_unwinds() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def cmd_study(args: argparse.Namespace) -> int:
+def _questionnaire_hooks(
+    args: argparse.Namespace,
+) -> tuple[Callable[[int, str], None] | None, Callable[[int, str], bool] | None]:
+    """With --ask: `between_strategies` and `answered` for run_study (the questionnaire on the
+    terminal); else None and None."""
+    if not args.ask:
+        return None, None
     from phri.study import questionnaire as q
     from phri.study.report import QUESTIONNAIRE_CSV
-    from phri.study.run import run_study
 
-    between = answered = None
-    if args.ask:
-        target = args.run_dir / QUESTIONNAIRE_CSV
+    target = args.run_dir / QUESTIONNAIRE_CSV
 
-        def between(participant: int, strategy: str) -> None:
-            answers = q.ask(participant, strategy)
-            q.append_response(target, participant, strategy, answers)
+    def between(participant: int, strategy: str) -> None:
+        answers = q.ask(participant, strategy)
+        q.append_response(target, participant, strategy, answers)
 
-        def answered(participant: int, strategy: str) -> bool:
-            if not target.exists():
-                return False
-            r = q.read_responses(target)
-            return bool(((r["participant"] == participant) & (r["strategy"] == strategy)).any())
+    def answered(participant: int, strategy: str) -> bool:
+        if not target.exists():
+            return False
+        r = q.read_responses(target)
+        return bool(((r["participant"] == participant) & (r["strategy"] == strategy)).any())
+
+    return between, answered
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    from phri._extras import available
 
     try:
+        from phri.study.run import run_study
+
+        between, answered = _questionnaire_hooks(args)
         with _sigterm_unwinds():
             config = _study_config(args)
             run = run_study(
                 args.run_dir, config, backend="serial" if args.ask else args.backend, workers=args.workers,
-                address=args.address, max_episodes=args.max_episodes, progress=not args.no_progress,
+                address=args.address, max_episodes=args.max_episodes,
+                progress=not args.no_progress and not getattr(args, "quiet", 0),
                 between_strategies=between, answered=answered,
                 allow_version_change=args.allow_version_change,
             )  # fmt: skip
@@ -210,6 +228,8 @@ def cmd_study(args: argparse.Namespace) -> int:
         f"{run.done} of {run.total} episodes recorded ({run.ran} run now with {run.workers or 0} "
         f"{run.backend} worker(s) in {int(minutes)} min {seconds:.1f} s) -> {args.run_dir / 'results.csv'}"
     )
+    if not available("pyarrow"):
+        logger.info("results.parquet not written: pyarrow is not installed (pip install 'phri[parquet]')")
     if run.complete:
         print(f"next: phri report {args.run_dir}")
     else:
@@ -218,9 +238,12 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from phri.study.report import write_report
+    from phri._extras import check_part
 
     try:
+        check_part("the report")
+        from phri.study.report import write_report
+
         path = write_report(
             args.run_dir,
             args.out,
@@ -238,13 +261,16 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_questionnaire(args: argparse.Namespace) -> int:
-    from phri.study import questionnaire as q
-    from phri.study.errors import QuestionnaireError
-    from phri.study.report import QUESTIONNAIRE_CSV
-    from phri.study.results import read_manifest
+    from phri._extras import check_part
 
-    target = args.run_dir / QUESTIONNAIRE_CSV
     try:
+        check_part("the questionnaire")
+        from phri.study import questionnaire as q
+        from phri.study.errors import QuestionnaireError
+        from phri.study.report import QUESTIONNAIRE_CSV
+        from phri.study.results import read_manifest
+
+        target = args.run_dir / QUESTIONNAIRE_CSV
         if not args.run_dir.is_dir():
             raise QuestionnaireError(f"{args.run_dir}: no such study folder")
         found = read_manifest(args.run_dir)
@@ -273,8 +299,12 @@ def cmd_questionnaire(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m phri.study {study,report,questionnaire} ...``"""
+    """``python -m phri.study {study,report,questionnaire} ...`` (with phri's global options)."""
+    from phri.cli import add_global_options, configure_logging
+
     parser = argparse.ArgumentParser(prog="python -m phri.study", description="phri's user study")
+    add_global_options(parser)
     register(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
+    configure_logging(args.verbose, args.quiet)
     return int(args.run(args))

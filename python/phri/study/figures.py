@@ -1,25 +1,56 @@
-"""The study's figures as PNG (matplotlib, Agg backend): the paper's Fig. 4 and Fig. 5. The path
-figure is :func:`phri.plots.plot_paths`, fed from the episode logs."""
+"""The study's figures as PNG and PDF (matplotlib, Agg backend): the paper's Fig. 4 and Fig. 5. The
+path figure is :func:`phri.plots.plot_paths`, fed from the episode logs.
+
+Each function takes the PNG's path and writes the PDF beside it (same name, ``.pdf``); it returns the
+PNG's path.
+"""
 
 from __future__ import annotations
 
+import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
+from phri._extras import require
 from phri._phri import Scene
+from phri.atomic import write_atomic
 from phri.exceptions import InvalidParameterError
 from phri.plots import REPORT_PATHS, STUDY_COLORS, pyplot
 from phri.plots import plot_paths as plot_path_figure
 
-__all__ = ["COLORS", "plot_cost", "plot_effort_time", "plot_paths", "read_paths"]
+if TYPE_CHECKING:
+    import pandas as pd
+else:
+    pd = require("pandas", __name__)
+
+__all__ = ["COLORS", "FORMATS", "log_rate", "plot_cost", "plot_effort_time", "plot_paths", "read_paths"]
 
 #: The paper's colours: impedance grey, learning orange, desired blue.
 COLORS = STUDY_COLORS
 #: p below this gets an asterisk (the paper's convention: p < 0.0001).
 STAR = 1e-4
+#: The formats every figure is written in: PNG for the report, PDF (vector) for a paper.
+FORMATS = ("png", "pdf")
+#: Resolution of the PNGs [dots per inch].
+DPI = 120
+
+
+def _paths(path: str | Path) -> list[Path]:
+    """The files of the figure whose PNG is `path`, one per format."""
+    return [Path(path).with_suffix(f".{fmt}") for fmt in FORMATS]
+
+
+def _save(fig: Any, path: str | Path) -> Path:
+    """Writes `fig` in every format (each file atomically) and closes it; returns the PNG's path."""
+    for target in _paths(path):
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format=target.suffix[1:], dpi=DPI)
+        write_atomic(target, buffer.getvalue())
+    pyplot().close(fig)
+    return Path(path).with_suffix(".png")
 
 
 def _task_label(task: str, familiarization: str | None, tasks: Sequence[str]) -> str:
@@ -33,7 +64,9 @@ def _star_p(tests: pd.DataFrame | None, task: str, measure: str) -> float:
     if tests is None or not len(tests):
         return float("nan")
     hit = tests[(tests["task"] == task) & (tests["measure"] == measure) & (tests["effect"] == "strategy")]
-    return float(hit["p"].iloc[0]) if len(hit) else float("nan")
+    if not len(hit) or ("estimable" in hit and not bool(hit["estimable"].iloc[0])):
+        return float("nan")  # a test that is not estimable never gets an asterisk
+    return float(hit["p"].iloc[0])
 
 
 def _bars(
@@ -78,10 +111,7 @@ def plot_effort_time(
     handles, names = axes[0].get_legend_handles_labels()
     fig.legend(handles, names, loc="outside lower center", ncols=len(names), title="strategy")
     fig.suptitle("Effort and interaction time by task and strategy (mean ± SD; * p < 0.0001)", fontsize=12)
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_cost(
@@ -119,10 +149,15 @@ def plot_cost(
         "Task cost against the desired behaviour's cost (mean ± SD; * p < 0.0001 on |cost − desired|)",
         fontsize=11,
     )
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
+
+
+def log_rate(log: str | Path) -> float:
+    """The rate at which an episode log holds its samples [Hz], from its times `t` (NaN with fewer
+    than two samples)."""
+    with np.load(log) as data:
+        t = np.asarray(data["t"], dtype=float)
+    return float(1.0 / np.median(np.diff(t))) if t.size > 1 else float("nan")
 
 
 def read_paths(log: str | Path, frame: str | None = None) -> dict[str, np.ndarray]:
@@ -164,7 +199,9 @@ def plot_paths(
     drawn if given."""
     paths = {strategy: read_paths(log, frame) for strategy, log in logs.items()}
     first = next(iter(paths.values()))
-    return plot_path_figure(
-        path, (first["t"], first["desired"]), {s: (p["t"], p["executed"]) for s, p in paths.items()},
-        REPORT_PATHS, scene=scene, task=task, keep_out=keep_out, title=title,
-    )  # fmt: skip
+    for target in _paths(path):  # phri.plots writes one file a call, its format from the suffix
+        plot_path_figure(
+            target, (first["t"], first["desired"]), {s: (p["t"], p["executed"]) for s, p in paths.items()},
+            REPORT_PATHS, scene=scene, task=task, keep_out=keep_out, title=title,
+        )  # fmt: skip
+    return Path(path).with_suffix(".png")

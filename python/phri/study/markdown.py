@@ -7,7 +7,11 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-__all__ = ["number", "p_value", "table"]
+__all__ = ["NOT_ESTIMABLE", "number", "p_value", "table"]
+
+#: What a report writes for a test that is not estimable (its error term without variance, see
+#: :mod:`phri.study.analysis`) in place of F, p and the effect size.
+NOT_ESTIMABLE = "not estimable"
 
 
 def number(x: object, digits: int = 3) -> str:

@@ -28,6 +28,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any, Protocol
 
+from phri._extras import NEEDS, check, require
 from phri.config import Task
 from phri.exceptions import InvalidParameterError
 from phri.study.protocol import EpisodeSpec, StudyConfig
@@ -262,12 +263,7 @@ class RayBackend:
         address: str | None = None,
         tasks: Mapping[str, Task] | None = None,
     ) -> None:
-        try:
-            import ray
-        except ImportError as e:
-            raise ImportError(
-                "the 'ray' backend needs Ray: pip install 'phri[ray]' (or: pip install ray)"
-            ) from e
+        ray = require("ray", "the 'ray' backend")
         self.ray = ray
         if workers is not None and workers < 1:
             raise InvalidParameterError(f"workers must be >= 1, got {workers}")
@@ -325,16 +321,12 @@ def cluster_cpus(ray: Any) -> int:
 
 
 def check_backend(name: str) -> None:
-    """Raises if backend `name` is unknown (InvalidParameterError) or not installed (ImportError)."""
+    """Raises if backend `name` is unknown (InvalidParameterError) or cannot run a study here
+    (:class:`~phri.exceptions.MissingExtraError`: the simulation, the results table and the progress
+    bar come with ``phri[study]``, Ray with ``phri[ray]``); imports none of them."""
     if name not in BACKENDS:
         raise InvalidParameterError(f"backend must be one of {BACKENDS}, got {name!r}")
-    if name == "ray":
-        try:
-            import ray  # noqa: F401
-        except ImportError as e:
-            raise ImportError(
-                "the 'ray' backend needs Ray: pip install 'phri[ray]' (or: pip install ray)"
-            ) from e
+    check((*NEEDS["a study"], *(("ray",) if name == "ray" else ())), "a study")
 
 
 def make_backend(

@@ -25,14 +25,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
+from phri._extras import require
 from phri.atomic import write_atomic
 from phri.study import markdown
 from phri.study.errors import QuestionnaireError
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from phri.study.protocol import StudyConfig
+else:
+    pd = require("pandas", __name__)
 
 __all__ = [
     "ITEMS",
@@ -47,6 +51,7 @@ __all__ = [
     "reverse_score",
     "scale_scores",
     "table1",
+    "table1_cells",
     "table1_markdown",
 ]
 
@@ -271,8 +276,8 @@ def cronbach_alpha(items: pd.DataFrame | np.ndarray) -> float:
     """Cronbach's α of an (respondents × items) table, as Hoyt's ANOVA reliability
     1 − MS_residual / MS_respondents of the two-way ANOVA without replication (statsmodels).
     NaN when it is undefined (fewer than 2 items or respondents, or no variance between respondents)."""
-    import statsmodels.formula.api as smf
-    from statsmodels.stats.anova import anova_lm
+    smf = require("statsmodels.formula.api", __name__)
+    anova_lm = require("statsmodels.stats.anova", __name__).anova_lm
 
     x = np.asarray(items, dtype=float)
     if x.ndim != 2 or x.shape[0] < 2 or x.shape[1] < 2 or not np.isfinite(x).all():
@@ -296,8 +301,9 @@ def cronbach_alpha(items: pd.DataFrame | np.ndarray) -> float:
 def table1(responses: pd.DataFrame, strategies: Sequence[str] = ("impedance", "learning")) -> pd.DataFrame:
     """The paper's Table 1: per scale its items, Cronbach's α, the mean score per strategy (the
     least-squares means, equal to the plain means in this balanced design), and the one-way
-    repeated-measures ANOVA (F, its degrees of freedom, p, partial η²). Participants who did not
-    answer for every strategy are left out of the ANOVA only."""
+    repeated-measures ANOVA (F, its degrees of freedom, p, partial η², and whether it is estimable:
+    see :mod:`phri.study.analysis`). Participants who did not answer for every strategy are left out
+    of the ANOVA only."""
     from phri.study.analysis import rm_anova
 
     unknown = sorted(set(responses["strategy"]) - set(strategies))
@@ -317,15 +323,19 @@ def table1(responses: pd.DataFrame, strategies: Sequence[str] = ("impedance", "l
             row[f"mean_{s}"] = float(scores.loc[scores["strategy"] == s, scale].mean())
         if len(anova):
             a = anova.iloc[0]
-            row.update(df1=a["df1"], df2=a["df2"], F=a["F"], p=a["p"], partial_eta_sq=a["partial_eta_sq"])
+            row.update(df1=a["df1"], df2=a["df2"], F=a["F"], p=a["p"], partial_eta_sq=a["partial_eta_sq"],
+                       estimable=bool(a["estimable"]))  # fmt: skip
         else:
-            row.update(df1=np.nan, df2=np.nan, F=np.nan, p=np.nan, partial_eta_sq=np.nan)
+            row.update(df1=np.nan, df2=np.nan, F=np.nan, p=np.nan, partial_eta_sq=np.nan, estimable=False)
         rows.append(row)
     return pd.DataFrame(rows)
 
 
-def table1_markdown(table: pd.DataFrame, strategies: Sequence[str] = ("impedance", "learning")) -> str:
-    """Table 1 as Markdown: scale, questions, α, mean per strategy, F(df1, df2), p."""
+def table1_cells(
+    table: pd.DataFrame, strategies: Sequence[str] = ("impedance", "learning")
+) -> tuple[list[str], list[list[str]]]:
+    """Table 1's column titles and formatted cells: scale, questions, α, mean per strategy,
+    F(df1, df2), p, partial η²; a test that is not estimable says so instead of F."""
     df = table.dropna(subset=["df2"])
     dfs = f"F({int(df['df1'].iloc[0])},{int(df['df2'].iloc[0])})" if len(df) else "F"
     head = [
@@ -337,19 +347,25 @@ def table1_markdown(table: pd.DataFrame, strategies: Sequence[str] = ("impedance
         "p",
         "partial η²",
     ]
-    rows = (
-        [
+    rows = []
+    for _, r in table.iterrows():
+        tested = bool(np.isfinite(float(r["df2"])))
+        f = markdown.NOT_ESTIMABLE if tested and not bool(r.get("estimable", True)) else _num(r["F"], 2)
+        rows.append([
             str(r["scale"]),
             str(r["items"]),
             _num(r["alpha"], 2),
             *(_num(r[f"mean_{s}"], 2) for s in strategies),
-            _num(r["F"], 2),
+            f,
             markdown.p_value(r["p"]),
             _num(r["partial_eta_sq"], 2),
-        ]
-        for _, r in table.iterrows()
-    )
-    return markdown.table(head, rows)
+        ])  # fmt: skip
+    return head, rows
+
+
+def table1_markdown(table: pd.DataFrame, strategies: Sequence[str] = ("impedance", "learning")) -> str:
+    """Table 1 as Markdown (see :func:`table1_cells`)."""
+    return markdown.table(*table1_cells(table, strategies))
 
 
 def _num(x: object, digits: int) -> str:

@@ -1,40 +1,57 @@
 """``phri report RUN_DIR``: the statistics, the figures and a Markdown report of a study folder.
 
-Writes a new folder ``RUN_DIR/report/`` (or `out`): ``report.md``, the PNG figures, and the tables
-behind them as CSV. If that folder exists (an earlier report, perhaps edited by hand) it is left as
-it is and the report goes to ``report-2``, ``report-3``, ...: written once, a report is never
-overwritten. The report is written into a hidden sibling folder renamed into place when complete,
-so a failing report leaves nothing behind. The study's own files are only read.
+Writes a new folder ``RUN_DIR/report/`` (or `out`): ``report.md``, the figures as PNG and PDF, and
+the tables behind them as CSV (the numbers) and LaTeX (``.tex``: the cells as the report shows them).
+Tests that are not estimable are reported so, never as a number, and a design too small to test
+gets a warning (in the report and on the ``phri.study.report`` logger). If that folder exists (an
+earlier report, perhaps edited by hand) it is left as it is and the report goes to ``report-2``,
+``report-3``, ...: written once, a report is never overwritten. The report is written into a hidden
+sibling folder renamed into place when complete, so a failing report leaves nothing behind. The
+study's own files are only read.
 """
 
 from __future__ import annotations
 
 import errno
+import logging
 import os
 import secrets
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
-
-from phri.study import analysis, figures, markdown
+from phri._extras import check_part, require
+from phri.atomic import write_atomic
+from phri.study import analysis, figures, latex, markdown
 from phri.study.errors import StudyConfigError, StudyFileError
-from phri.study.markdown import number, p_value
+from phri.study.markdown import NOT_ESTIMABLE, number, p_value
 from phri.study.protocol import StudyConfig
 from phri.study.results import load_results, read_manifest
 
-__all__ = ["QUESTIONNAIRE_CSV", "write_report"]
+if TYPE_CHECKING:
+    import pandas as pd
+else:
+    pd = require("pandas", __name__)
+
+__all__ = ["MIN_PARTICIPANTS", "QUESTIONNAIRE_CSV", "write_report"]
+
+logger = logging.getLogger(__name__)
 
 #: Where a study folder keeps its questionnaire answers (see phri.study.questionnaire).
 QUESTIONNAIRE_CSV = "questionnaire.csv"
+#: Fewer participants than this are too few to test: the repeated-measures ANOVA's F(df1, P − 1)
+#: would rest on a single error degree of freedom (F(1, 1)) or none.
+MIN_PARTICIPANTS = 3
+
+#: A table as the report shows it: column titles and formatted cells (written as Markdown and LaTeX).
+Cells = tuple[list[str], list[list[str]]]
 
 
-def _md(table: pd.DataFrame, formats: dict[str, Callable[[object], str]] | None = None) -> str:
-    """`table` as Markdown; `formats` by column (default: strings as they are, numbers as
-    :func:`markdown.number`)."""
+def _cells(table: pd.DataFrame, formats: dict[str, Callable[[object], str]] | None = None) -> Cells:
+    """`table`'s column titles and cells; `formats` by column (default: strings as they are, numbers
+    as :func:`markdown.number`)."""
     formats = formats or {}
 
     def cell(column: str, value: object) -> str:
@@ -42,21 +59,47 @@ def _md(table: pd.DataFrame, formats: dict[str, Callable[[object], str]] | None 
             return formats[column](value)
         return value if isinstance(value, str) else number(value)
 
-    rows = ([cell(c, row[c]) for c in table.columns] for _, row in table.iterrows())
-    return markdown.table([str(c) for c in table.columns], rows)
+    rows = [[cell(c, row[c]) for c in table.columns] for _, row in table.iterrows()]
+    return [str(c) for c in table.columns], rows
+
+
+def _md(table: pd.DataFrame, formats: dict[str, Callable[[object], str]] | None = None) -> str:
+    """`table` as Markdown (see :func:`_cells`)."""
+    return markdown.table(*_cells(table, formats))
+
+
+def _f_cell(r: Any) -> str:
+    """An ANOVA row's "F(df1, df2) = F", or that it is not estimable (never a number then)."""
+    form = f"F({r.df1:g}, {r.df2:g})"
+    return f"{form} = {number(r.F, 2)}" if bool(r.estimable) else f"{form}: {NOT_ESTIMABLE}"
+
+
+def _anova_cells(table: pd.DataFrame) -> Cells:
+    """An ANOVA table's cells: task (if any), measure, effect, F(df1, df2), p, partial η²."""
+    t = table.copy()
+    t.insert(0, "F(df1, df2)", [_f_cell(r) for r in t.itertuples()])
+    t["measure"] = t["measure"].map(lambda m: analysis.MEASURES.get(m, m))
+    cols = [c for c in ("task", "measure", "effect", "F(df1, df2)", "p", "partial_eta_sq") if c in t]
+    return _cells(
+        t[cols].rename(columns={"partial_eta_sq": "partial η²"}), {"p": p_value, "F(df1, df2)": str}
+    )
 
 
 def _anova_md(table: pd.DataFrame) -> str:
     if not len(table):
         return "_Not enough data (needs at least two levels of a factor, and two complete participants)._\n"
-    t = table.copy()
-    t.insert(0, "F(df1, df2)", [f"F({r.df1:g}, {r.df2:g}) = {number(r.F, 2)}" for r in t.itertuples()])
-    t["measure"] = t["measure"].map(lambda m: analysis.MEASURES.get(m, m))
-    cols = [c for c in ("task", "measure", "effect", "F(df1, df2)", "p", "partial_eta_sq") if c in t]
-    return _md(t[cols].rename(columns={"partial_eta_sq": "partial η²"}), {"p": p_value, "F(df1, df2)": str})
+    text = markdown.table(*_anova_cells(table))
+    if not table["estimable"].all():
+        text += (
+            f"\n_{NOT_ESTIMABLE.capitalize()}: the test's error term has no variance (every participant's "
+            "value is the same in each cell, up to rounding), so its F would be 0/0 or x/0 in floating "
+            "point, not a statistic._\n"
+        )
+    return text
 
 
-def _descriptives_md(desc: pd.DataFrame) -> str:
+def _descriptives_cells(desc: pd.DataFrame) -> Cells | None:
+    """The descriptives as the report shows them (mean ± SD), or None without completed episodes."""
     rows = []
     for r in desc.itertuples():
         rows.append({
@@ -68,7 +111,12 @@ def _descriptives_md(desc: pd.DataFrame) -> str:
             "desired cost": number(r.desired_cost_mean),
             "abs(cost − desired)": f"{number(r.cost_error_mean)} ± {number(r.cost_error_sd)}",
         })  # fmt: skip
-    return _md(pd.DataFrame(rows), {c: str for c in rows[0]}) if rows else "_No completed episodes._\n"
+    return _cells(pd.DataFrame(rows), {c: str for c in rows[0]}) if rows else None
+
+
+def _descriptives_md(desc: pd.DataFrame) -> str:
+    cells = _descriptives_cells(desc)
+    return markdown.table(*cells) if cells is not None else "_No completed episodes._\n"
 
 
 def _sample_logs(
@@ -172,7 +220,9 @@ def write_report(
 
     `questionnaire`: a Table 1 answers CSV (default: ``RUN_DIR/questionnaire.csv`` if present).
     `participant`, `task`: the sample shown in the path figure (default: participant 1, laptop); a
-    participant or task the study does not have is a :class:`StudyConfigError`."""
+    participant or task the study does not have is a :class:`StudyConfigError`; without the
+    ``phri[study]`` extra, a :class:`~phri.exceptions.MissingExtraError`."""
+    check_part("the report")  # before any work (pandas was needed to import this module)
     run_dir = Path(run_dir)
     found = read_manifest(run_dir)
     if found is None:
@@ -228,12 +278,70 @@ def _statistics(raw: pd.DataFrame, config: StudyConfig) -> _Statistics:
     )
 
 
-def _write_tables(out: Path, stats: _Statistics) -> None:
-    """The statistics as CSV files."""
-    stats.descriptives.to_csv(out / "descriptives.csv", index=False)
-    stats.pooled.to_csv(out / "anova_pooled.csv", index=False)
-    stats.rm.to_csv(out / "anova_rm.csv", index=False)
-    stats.by_task.to_csv(out / "anova_by_task.csv", index=False)
+def _write_table(out: Path, name: str, table: pd.DataFrame, cells: Cells | None) -> list[str]:
+    """Writes `table` as ``NAME.csv`` (its numbers) and, if it has `cells`, ``NAME.tex`` (them as the
+    report shows them), each atomically; returns the files' names."""
+    write_atomic(out / f"{name}.csv", table.to_csv(index=False).encode("utf-8"))
+    if cells is None:
+        return [f"{name}.csv"]
+    write_atomic(out / f"{name}.tex", latex.table(*cells).encode("utf-8"))
+    return [f"{name}.csv", f"{name}.tex"]
+
+
+def _write_tables(out: Path, stats: _Statistics) -> list[str]:
+    """The statistics as CSV and LaTeX files; returns their names."""
+    return [
+        *_write_table(out, "descriptives", stats.descriptives, _descriptives_cells(stats.descriptives)),
+        *(
+            name
+            for key, table in (("pooled", stats.pooled), ("rm", stats.rm), ("by_task", stats.by_task))
+            for name in _write_table(out, f"anova_{key}", table, _anova_cells(table) if len(table) else None)
+        ),
+    ]
+
+
+def _design_warnings(stats: _Statistics, config: StudyConfig) -> list[str]:
+    """Why the tests of this study say little or nothing, if they do: too few participants, too few
+    error degrees of freedom, tests that are not estimable."""
+    out = []
+    small = config.participants < MIN_PARTICIPANTS
+    if small:
+        out.append(
+            f"The study has {config.participants} participant(s), fewer than {MIN_PARTICIPANTS}: too few "
+            f"to test. The repeated-measures ANOVAs have F(df1, P − 1) = F(·, {config.participants - 1}) "
+            "at best, and the pooled ANOVA treats one participant's trials as independent; read the "
+            "p-values as a description of these runs, not as evidence."
+        )
+    analyses = {"pooled factorial ANOVA": stats.pooled, "repeated-measures ANOVA": stats.rm,
+                "per-task repeated-measures ANOVA": stats.by_task}  # fmt: skip
+    for name, table in analyses.items():
+        if small and name != "pooled factorial ANOVA":
+            continue  # said above
+        few = table[table["df2"] < 2] if len(table) else table
+        if len(few):
+            forms = " and ".join(sorted({f"F({r.df1:g}, {r.df2:g})" for r in few.itertuples()}))
+            out.append(
+                f"The {name} has {forms}: with fewer than 2 error degrees of freedom a test has "
+                "almost no power and its p-value rests on one residual or none."
+            )
+    tests = [t for t in analyses.values() if len(t)]
+    n_tests = sum(len(t) for t in tests)
+    n_not = sum(int((~t["estimable"].astype(bool)).sum()) for t in tests)
+    if n_not:
+        out.append(
+            f"{n_not} of the {n_tests} tests {'is' if n_not == 1 else 'are'} {NOT_ESTIMABLE} (their error "
+            "term has no variance: "
+            "every participant's value is the same in each cell, up to rounding); they are marked so "
+            "and never get a significance asterisk."
+        )
+    return out
+
+
+def _warnings_md(warnings: list[str]) -> list[str]:
+    """The report's warnings section, if there are warnings."""
+    if not warnings:
+        return []
+    return ["## Warnings", "", *(f"- **Warning**: {w}" for w in warnings), ""]
 
 
 def _introduction(
@@ -271,8 +379,9 @@ def _introduction(
         "## Measures",
         "",
         "- **Effort**: Σ over interaction samples of Σ_j |u_H,j| [N·m] (the measured joint torques while the "
-        "robot detects an interaction, 10 Hz).",
-        "- **Interaction time**: number of interaction samples × the sample period [s].",
+        f"robot detects an interaction, sampled at {config.sample_rate:g} Hz).",
+        "- **Interaction time**: number of interaction samples × the sample period "
+        f"(1/{config.sample_rate:g} Hz = {1.0 / config.sample_rate:g} s) [s].",
         "- **Cost**: the task feature's unweighted count over the executed path; **desired cost**: the same "
         "for the desired behaviour (the plan for the true weights). The statistics use the cost *relative to "
         "the desired one*, |cost − desired cost| (the paper's footnote 2).",
@@ -333,12 +442,13 @@ def _figures(
         lines += [
             f"![Effort and interaction time]({fig4.name})",
             "",
-            "**Fig. 4** Effort and interaction time by task and strategy (mean ± SD).",
+            f"**Fig. 4** Effort and interaction time by task and strategy (mean ± SD). Also as "
+            f"`{fig4.with_suffix('.pdf').name}`.",
             "",
             f"![Cost against the desired cost]({fig5.name})",
             "",
             "**Fig. 5 (left)** Task cost of the executed path per strategy against the desired behaviour's "
-            "cost.",
+            f"cost. Also as `{fig5.with_suffix('.pdf').name}`.",
             "",
         ]
     else:
@@ -355,17 +465,20 @@ def _figures(
         frame=shown.feature_frame,
         title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
     )  # fmt: skip
+    rate = figures.log_rate(next(iter(logs.values())))
     return lines + [
         f"![Sample participant's paths]({fig_paths.name})",
         "",
         f"**Fig. 5 (right)** Participant {p}, task '{t}', first attempt: the cup's path (link_7) with "
-        "each strategy against the desired path, from the episode logs (100 Hz).",
+        f"each strategy against the desired path, from the episode logs ({rate:.4g} Hz). Also as "
+        f"`{fig_paths.with_suffix('.pdf').name}`.",
         "",
     ]
 
 
 def _questionnaire(out: Path, qpath: Path, config: StudyConfig) -> list[str]:
-    """Table 1 from the answers in `qpath` (also written as table1.csv), if there are any."""
+    """Table 1 from the answers in `qpath` (also written as table1.csv and table1.tex), if there
+    are any."""
     from phri.study import questionnaire as q
 
     lines = ["## Questionnaire (Table 1)", ""]
@@ -377,7 +490,7 @@ def _questionnaire(out: Path, qpath: Path, config: StudyConfig) -> list[str]:
         ]
     responses = q.read_responses(qpath)
     t1 = q.table1(responses, config.strategies)
-    t1.to_csv(out / "table1.csv", index=False)
+    _write_table(out, "table1", t1, q.table1_cells(t1, config.strategies))
     return lines + [
         f"From `{qpath}` ({len(responses)} questionnaires, {responses['participant'].nunique()} "
         f"participants). Items {', '.join(map(str, q.REVERSED))} are reverse-scored (8 − x), so higher "
@@ -399,22 +512,30 @@ def _write(
     participant: int | None,
     task: str | None,
 ) -> None:
-    """Writes every file of the report into the (new, empty) folder `out`: the statistics as CSV,
-    the figures, and report.md."""
+    """Writes every file of the report into the (new, empty) folder `out`: the statistics as CSV and
+    LaTeX, the figures as PNG and PDF, and report.md (each file atomically)."""
     stats = _statistics(raw, config)
-    _write_tables(out, stats)
+    tables = _write_tables(out, stats)
+    warnings = _design_warnings(stats, config)
+    for w in warnings:
+        logger.warning("%s: %s", run_dir, w)
     qpath = Path(questionnaire) if questionnaire is not None else run_dir / QUESTIONNAIRE_CSV
     lines = [
         *_introduction(run_dir, config, manifest, raw),
+        *_warnings_md(warnings),
         *_statistics_md(stats, config),
         *_figures(out, run_dir, config, raw, stats, participant, task),
         *_questionnaire(out, qpath, config),
+    ]
+    if qpath.exists():
+        tables += ["table1.csv", "table1.tex"]
+    lines += [
         "## Files",
         "",
-        "`descriptives.csv`, `anova_pooled.csv`, `anova_rm.csv`, `anova_by_task.csv`"
-        + (", `table1.csv`" if qpath.exists() else "")
-        + ": the tables above. The per-episode table is the study folder's `results.csv` / "
-        "`results.parquet`.",
+        ", ".join(f"`{name}`" for name in tables)
+        + ": the tables above, as CSV (the numbers) and LaTeX (the cells as shown here; needs booktabs). "
+        "The figures are PNG and PDF files of the same names. The per-episode table is the study "
+        "folder's `results.csv` (and `results.parquet` where the `phri[parquet]` extra is installed).",
         "",
     ]
-    (out / "report.md").write_text("\n".join(lines), encoding="utf-8")
+    write_atomic(out / "report.md", "\n".join(lines).encode("utf-8"))

@@ -5,7 +5,7 @@ Layout of a study folder::
     study.json          the manifest: the study's parameters (StudyConfig), seed, task digests
     participants.csv    each simulated participant's parameters and strategy order
     results.csv         the table, one row per finished episode, appended and fsync'ed as each ends
-    results.parquet     the same table in session order, rewritten (atomically) as the study goes
+    results.parquet     the same table in session order, rewritten atomically as it goes (phri[parquet])
     logs/*.npz          each episode's compressed log (run_episode's arrays)
 
 ``results.csv`` is the journal: an episode is done exactly when its row is there. Rerunning the same
@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from phri._extras import available, require
 from phri.atomic import partial_path, write_atomic
 from phri.study.errors import StudyFileError, StudyLockedError, StudyMismatchError
 from phri.study.protocol import EpisodeSpec, StudyConfig, participant_params, schedule, strategy_order
@@ -382,12 +383,13 @@ class ResultStore:
         return _frame(self.rows[s.key] for s in self.specs if s.key in self.rows)
 
     def export(self, *, sort_csv: bool = False) -> None:
-        """Rewrites results.parquet (atomically) from the rows so far; with `sort_csv`, also rewrites
-        results.csv in session order (same rows, atomic replace)."""
-        table = self.table()
-        buffer = io.BytesIO()
-        table.to_parquet(buffer, index=False)
-        write_atomic(self.run_dir / RESULTS_PARQUET, buffer.getvalue())
+        """Rewrites results.parquet (atomically) from the rows so far, if pyarrow (``phri[parquet]``)
+        is installed; with `sort_csv`, also rewrites results.csv in session order (same rows, atomic
+        replace)."""
+        if available("pyarrow"):
+            buffer = io.BytesIO()
+            self.table().to_parquet(buffer, index=False)
+            write_atomic(self.run_dir / RESULTS_PARQUET, buffer.getvalue())
         if sort_csv:
             text = _format_header() + "".join(
                 _format_row(self.rows[s.key]) for s in self.specs if s.key in self.rows
@@ -412,7 +414,7 @@ def _format_header() -> str:
 
 
 def _frame(rows: Iterable[dict[str, Any]]) -> pd.DataFrame:
-    import pandas as pd
+    pd = require("pandas", __name__)
 
     table = pd.DataFrame(list(rows), columns=list(COLUMNS))
     for column, kind in COLUMNS.items():

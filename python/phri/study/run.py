@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from phri._extras import require
 from phri.exceptions import InvalidParameterError
 from phri.study.parallel import Backend, check_backend, make_backend
 from phri.study.protocol import EpisodeSpec, StudyConfig
@@ -174,9 +175,10 @@ def _block_ends(specs: list[EpisodeSpec]) -> set[tuple[int, str, str, int]]:
 
 
 def _progress_bar(total: int, initial: int, enabled: bool, backend: str, workers: int) -> Any:
-    from tqdm import tqdm
-
+    """A tqdm bar on stderr, shown only if `enabled` and stderr is a terminal (disable=None): no
+    carriage returns in a log file."""
+    tqdm = require("tqdm", __name__).tqdm
     return tqdm(
-        total=total, initial=initial, disable=not enabled, unit="episode", dynamic_ncols=True,
+        total=total, initial=initial, disable=None if enabled else True, unit="episode", dynamic_ncols=True,
         desc=f"study ({backend}, {workers} worker{'s' if workers != 1 else ''})", smoothing=0.1,
     )  # fmt: skip

@@ -130,12 +130,20 @@ impl PyRobot {
             let carried = carried?;
             let name: String = carried.getattr("name")?.extract()?;
             let frame: String = carried.getattr("frame")?.extract()?;
-            let path: PathBuf = carried.getattr("urdf")?.extract()?;
             let key = format!("carried.{name}");
             let id = model
                 .frame_id(&frame)
                 .map_err(|e| error(Kind::UnknownName, format!("{source}: key '{key}.frame': {e}")))?;
-            model = attach_urdf_file(model, &name, id, &path).map_err(|e| error(Kind::Urdf, format!("{source}: key '{key}.urdf': {e}")))?;
+            let text: String = carried.call_method0("urdf_text")?.extract()?;
+            model = model
+                .with_attached_urdf(&name, id, &text)
+                .map_err(|e| {
+                    let why = match e {
+                        PhriError::Urdf { reason, .. } => reason,
+                        other => other.to_string(),
+                    };
+                    error(Kind::Urdf, format!("{source}: key '{key}.urdf': {why}"))
+                })?;
         }
         let mut frames = RobotFrames::default();
         for (key, slot) in

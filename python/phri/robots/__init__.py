@@ -36,9 +36,21 @@ class CarriedObject:
     joins the robot's collision model, ``Robot.with_attached_urdf``) and the frame its root is
     held at."""
 
+    source: str
     name: str
     urdf: Path
     frame: str
+
+    def urdf_text(self) -> str:
+        """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
+        return _read(self.source, f"carried.{self.name}.urdf", self.urdf)
+
+
+def _read(source: str, key: str, path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{source}: key '{key}': cannot read {path} ({e})") from None
 
 
 @dataclass(frozen=True)
@@ -59,10 +71,7 @@ class RobotDescription:
 
     def urdf_text(self) -> str:
         """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
-        try:
-            return self.urdf.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
-            raise ConfigError(f"{self.source}: key 'urdf': cannot read {self.urdf} ({e})") from None
+        return _read(self.source, "urdf", self.urdf)
 
 
 def load(name_or_path: str | Path) -> RobotDescription:
@@ -93,7 +102,7 @@ def load(name_or_path: str | Path) -> RobotDescription:
 
 
 def _carried(r: Reader, folder: Path) -> tuple[CarriedObject, ...]:
-    """The [carried.<name>] tables; each URDF path is relative to the description and must exist."""
+    """The [carried.<name>] tables; each URDF path is relative to the description."""
     table = r.get("carried", {})
     if not isinstance(table, dict):
         raise r.fail("carried", "a table of object tables, e.g. [carried.cup]", table)
@@ -102,8 +111,5 @@ def _carried(r: Reader, folder: Path) -> tuple[CarriedObject, ...]:
         if not isinstance(spec, dict):
             raise r.fail(f"carried.{name}", "a table with urdf and frame", spec)
         c = Reader(r.source, spec, f"carried.{name}.", CARRIED_KEYS)
-        urdf = folder / c.string("urdf")
-        if not urdf.is_file():
-            raise c.fail("urdf", "the path of a URDF file (relative to the description)", str(urdf))
-        objects.append(CarriedObject(name, urdf, c.string("frame")))
+        objects.append(CarriedObject(r.source, name, folder / c.string("urdf"), c.string("frame")))
     return tuple(objects)

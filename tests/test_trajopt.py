@@ -85,7 +85,7 @@ def test_the_reference_objective_is_the_one_phri_minimises(name, solved) -> None
 def test_without_smoothing_and_penalties_the_objective_is_features_weighted_cost(robot) -> None:
     names = ["efficiency", "table", "coffee", "laptop", "human"]
     features = phri.Features(robot, peers.study_features(names), scene=peers.STUDY_SCENE)
-    opt = phri.TrajectoryOptimizer(features, 31, smoothing=0.0)
+    opt = phri.TrajectoryOptimizer(features, 31, smoothing=0.0, speed_limits=False, collisions=False)
     problem = peers.study_problem("laptop")
     rng = np.random.default_rng(9)
     w = np.array([1.0, 0.5, 2.0, 10.0, 10.0])
@@ -191,11 +191,11 @@ def test_bad_input_is_a_typed_error(robot) -> None:
         opt.objective(np.zeros((5, 7)), w)
     features = phri.Features(robot, ["efficiency", "table"])
     with pytest.raises(ex.InvalidParameterError, match="waypoints"):
-        phri.TrajectoryOptimizer(features, 2)
+        phri.TrajectoryOptimizer(features, 2, duration=15.0)
     with pytest.raises(ex.InvalidParameterError, match="max_step"):
         phri.TrajectoryOptimizer(features, 31, max_step=-np.ones(7))
     with pytest.raises(ex.UnknownNameError):
-        phri.TrajectoryOptimizer(features, 31, clearance=[("no_such_frame", 0.0)])
+        phri.TrajectoryOptimizer(features, 31, duration=15.0, clearance=[("no_such_frame", 0.0)])
 
 
 def test_solve_releases_the_gil() -> None:

@@ -94,7 +94,9 @@ def load(name_or_path: str | Path) -> RobotDescription:
     cup = next((c for c in carried if c.name == CUP), None)
     if cup is not None:  # the cup's frame has one home: its [carried.cup] table
         if frames["cup_frame"] not in (None, cup.frame):
-            raise r.fail("cup_frame", f"left out or the frame of [carried.{CUP}] ({cup.frame!r})", frames["cup_frame"])
+            raise r.fail(
+                "cup_frame", f"left out or the frame of [carried.{CUP}] ({cup.frame!r})", frames["cup_frame"]
+            )
         frames["cup_frame"] = cup.frame
     return RobotDescription(
         source, path.parent / r.string("urdf"), r.string("base"), r.string("tip"), **frames, carried=carried

@@ -131,19 +131,15 @@ impl PyRobot {
             let name: String = carried.getattr("name")?.extract()?;
             let frame: String = carried.getattr("frame")?.extract()?;
             let key = format!("carried.{name}");
-            let id = model
-                .frame_id(&frame)
-                .map_err(|e| error(Kind::UnknownName, format!("{source}: key '{key}.frame': {e}")))?;
+            let id = model.frame_id(&frame).map_err(|e| error(Kind::UnknownName, format!("{source}: key '{key}.frame': {e}")))?;
             let text: String = carried.call_method0("urdf_text")?.extract()?;
-            model = model
-                .with_attached_urdf(&name, id, &text)
-                .map_err(|e| {
-                    let why = match e {
-                        PhriError::Urdf { reason, .. } => reason,
-                        other => other.to_string(),
-                    };
-                    error(Kind::Urdf, format!("{source}: key '{key}.urdf': {why}"))
-                })?;
+            model = model.with_attached_urdf(&name, id, &text).map_err(|e| {
+                let why = match e {
+                    PhriError::Urdf { reason, .. } => reason,
+                    other => other.to_string(),
+                };
+                error(Kind::Urdf, format!("{source}: key '{key}.urdf': {why}"))
+            })?;
         }
         let mut frames = RobotFrames::default();
         for (key, slot) in
@@ -225,7 +221,7 @@ impl PyRobot {
         self.model.collision().incomplete_reason(&self.model.name)
     }
 
-    /// Body `name`'s spheres: (centres (k, 3) in the body's frame [m], radii (k,) [m], the frame's
+    /// Body `name`'s spheres: (centres (k, 3) in the body's frame [m], radii (k,) [m], that frame's
     /// name).
     #[allow(clippy::type_complexity)]
     fn collision_spheres<'py>(
@@ -252,13 +248,14 @@ impl PyRobot {
         let id = self.frame(frame)?;
         let (centers, k) = matrix("centers", &centers, None, 3)?;
         if k == 0 {
-            return Err(error(Kind::Shape, "centers must have shape (k, 3) with k >= 1 (at least one sphere), got (0, 3)"));
+            return Err(error(Kind::Shape, "centers must have shape (N, 3) with N >= 1 (at least one sphere), got (0, 3)"));
         }
         let radii = vector("radii", &radii, k)?;
-        if let Some(r) = radii.iter().find(|r| !(**r > 0.0)) {
+        if let Some(r) = radii.iter().find(|r| **r <= 0.0) {
             return Err(error(Kind::InvalidParameter, format!("radii must be distances > 0 m, got {r}")));
         }
-        let spheres = centers.chunks_exact(3).zip(radii.iter()).map(|(c, &r)| Sphere::new(Vector3::from_column_slice(c), r)).collect();
+        let spheres =
+            centers.chunks_exact(3).zip(radii.iter()).map(|(c, &r)| Sphere::new(Vector3::from_column_slice(c), r)).collect();
         let model = (*self.model).clone().with_collision_spheres(name, id, spheres).py_err()?;
         Ok(self.derived(model))
     }
@@ -274,7 +271,8 @@ impl PyRobot {
 
     /// The smallest signed distance [m] of each collision body (`collision_bodies`) to each object
     /// of `scene` (its `names`), negative where they overlap, without leaving any pair out; `q`
-    /// (n,) → (bodies, objects), (N, n) → (N, bodies, objects).
+    /// (n,) → (bodies, objects), (N, n) → (N, bodies, objects). Measured on the bodies' spheres,
+    /// which cover the links: never more than a link's own distance.
     fn scene_distances<'py>(
         &mut self,
         py: Python<'py>,

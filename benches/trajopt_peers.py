@@ -4,7 +4,8 @@ problem, in one run: the study's planner (python/phri/sim/episode.py `Planner`) 
 The problem (eq. 4 as phri solves it): N waypoints, start and goal fixed, joint limits as bounds,
 cost = w_eff·efficiency + w_task·task feature (the kinks Huber-smoothed with δ = 0.05) + the
 clearance penalty ρ·Σ max(0, z_min − z)² of the tool point and link_7 at every interior waypoint
-(ρ = 10³) + the max_step penalty 10³·Σ max(0, |Δq| − L)², L = 0.5 × velocity limit × spacing.
+(ρ = 10³) + the max_step penalty 10³·Σ max(0, |Δq| − L)², L = 0.5 × velocity limit × spacing
+(two thirds of it on the first and last segments). Collision checks are off: the peers have none.
 
 Solvers, all from the same straight line, with the joint limits as bounds:
 
@@ -125,6 +126,7 @@ def phri_optimizer(problem: Problem, **kwargs) -> phri.TrajectoryOptimizer:
     robot = phri.Robot.jaco2()
     features = phri.Features(robot, study_features(problem.names), scene=STUDY_SCENE)
     options = {
+        "collisions": False,  # the peers' problem (ReferenceObjective) has no collision term
         "clearance_weight": CLEARANCE_WEIGHT,
         "step_weight": STEP_WEIGHT,
         "smoothing": problem.smoothing,
@@ -278,7 +280,11 @@ class ReferenceObjective:
             gap = np.maximum(min_z - pos[:, 2], 0.0)
             penalty += CLEARANCE_WEIGHT * float(np.sum(gap * gap))
             grad[1 : n_wp - 1] -= 2.0 * CLEARANCE_WEIGHT * gap[:, None] * jac[:, 2, :]
-        excess = np.maximum(np.abs(seg) - p.max_step, 0.0)
+        # Two thirds of max_step on the first and last segments, where the executed cubic starts
+        # or ends at rest (phri_core::trajopt::cost::segment_step).
+        limit = np.tile(p.max_step, (n_wp - 1, 1))
+        limit[[0, -1]] *= 2.0 / 3.0
+        excess = np.maximum(np.abs(seg) - limit, 0.0)
         penalty += STEP_WEIGHT * float(np.sum(excess * excess))
         g = 2.0 * STEP_WEIGHT * excess * np.sign(seg)
         grad[1:] += g

@@ -198,6 +198,7 @@ def test_robot_descriptions_name_their_file_in_errors(tmp_path):
 
     shipped = importlib.resources.files("phri").joinpath("robots/jaco2")
     (tmp_path / "arm.urdf").write_text(shipped.joinpath("j2s7s300.urdf").read_text())
+    (tmp_path / "cup.urdf").write_text(shipped.joinpath("cup.urdf").read_text())  # [carried.cup]
     text = shipped.joinpath("robot.toml").read_text()
     description = tmp_path / "robot.toml"
     description.write_text(text.replace('urdf = "j2s7s300.urdf"', 'urdf = "arm.urdf"'))

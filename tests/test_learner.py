@@ -41,7 +41,7 @@ def features(robot: phri.Robot) -> phri.Features:
 
 @pytest.fixture(scope="module")
 def optimizer(features: phri.Features) -> phri.TrajectoryOptimizer:
-    return phri.TrajectoryOptimizer(features, WAYPOINTS)
+    return phri.TrajectoryOptimizer(features, WAYPOINTS, duration=DURATION)
 
 
 @pytest.fixture

@@ -12,6 +12,7 @@ frame composes the double-precision COM frame (fields 0, 1) with the local inert
 
 from __future__ import annotations
 
+import importlib.resources
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -1092,3 +1093,73 @@ def test_inputs_that_are_not_numbers_are_a_type_error_naming_the_argument(robot:
         robot.gravity(bad)
     with pytest.raises(TypeError, match=r"^argument 'waypoints': expected numbers"):
         phri.TimedTrajectory(bad, 15.0)
+
+
+# --------------------------------------------------------------------------------------------------
+# what a robot description carries
+
+
+def _description(tmp_path: Path, carried: str, extra: str = "") -> Path:
+    """A copy of the shipped JACO2 description in `tmp_path` with `carried` as its [carried] tables."""
+    shipped = Path(str(importlib.resources.files("phri").joinpath("robots/jaco2")))
+    for name in ("j2s7s300.urdf", "cup.urdf"):
+        (tmp_path / name).write_text((shipped / name).read_text())
+    text = (shipped / "robot.toml").read_text()
+    head = text[: text.index("[carried.cup]")]
+    path = tmp_path / "robot.toml"
+    path.write_text(extra + head + carried)
+    return path
+
+
+def test_a_description_attaches_what_the_robot_carries(tmp_path: Path) -> None:
+    tray = '<robot name="tray"><link name="tray"><collision><origin xyz="0 0 0.05"/><geometry><box size="0.2 0.2 0.01"/></geometry></collision></link></robot>'  # noqa: E501
+    (tmp_path / "tray.urdf").write_text(tray)
+    both = _description(
+        tmp_path,
+        '[carried.cup]\nurdf = "cup.urdf"\nframe = "j2s7s300_cup_frame"\n'
+        '[carried.tray]\nurdf = "tray.urdf"\nframe = "j2s7s300_link_7"\n',
+    )
+    robot = phri.Robot.from_description(both)
+    assert robot.collision_bodies[-2:] == ["cup", "tray"] and robot.cup_frame == CUP_FRAME
+    centers, radii, frame = robot.collision_spheres("tray")
+    assert frame == LINK_7 and np.allclose(centers[:, 2], 0.05) and len(radii) > 1
+    none = _description(tmp_path, "", extra='cup_frame = "j2s7s300_cup_frame"\n')
+    bare = phri.Robot.from_description(none)
+    assert "cup" not in bare.collision_bodies and bare.cup_frame == CUP_FRAME
+    assert phri.Robot.jaco2().collision_bodies[-1] == "cup"
+
+
+@pytest.mark.parametrize(
+    ("carried", "extra", "error", "message"),
+    [
+        ("carried = 3\n", "", ex.ConfigError, "key 'carried' must be a table of object tables"),
+        ("[carried]\ncup = 1\n", "", ex.ConfigError, "key 'carried.cup' must be a table with urdf and frame"),
+        ('[carried.cup]\nurdf = "cup.urdf"\n', "", ex.ConfigError, "missing key 'carried.cup.frame'"),
+        (
+            '[carried.cup]\nurdf = "cup.urdf"\nframe = "j2s7s300_cup_frame"\nmass = 0.3\n',
+            "", ex.ConfigError, "unknown key 'carried.cup.mass' in table [carried.cup]",
+        ),
+        (
+            '[carried.cup]\nurdf = "mug.urdf"\nframe = "j2s7s300_cup_frame"\n',
+            "", ex.ConfigError, "key 'carried.cup.urdf': cannot read",
+        ),
+        (
+            '[carried.cup]\nurdf = "j2s7s300.urdf"\nframe = "j2s7s300_cup_frame"\n',
+            "", ex.UrdfError,
+            "key 'carried.cup.urdf': joint 'j2s7s300_joint_1' of an attached object must be fixed",
+        ),
+        (
+            '[carried.cup]\nurdf = "cup.urdf"\nframe = "j2s7s300_hand"\n',
+            "", ex.UnknownNameError, "key 'carried.cup.frame': frame: unknown frame 'j2s7s300_hand'",
+        ),
+        (
+            '[carried.cup]\nurdf = "cup.urdf"\nframe = "j2s7s300_cup_frame"\n',
+            'cup_frame = "j2s7s300_link_7"\n', ex.ConfigError,
+            "key 'cup_frame' must be left out or the frame of [carried.cup] ('j2s7s300_cup_frame')",
+        ),
+    ],
+)  # fmt: skip
+def test_bad_carried_tables_name_the_file_and_key(tmp_path: Path, carried, extra, error, message) -> None:
+    path = _description(tmp_path, carried, extra)
+    with pytest.raises(error, match="^" + re.escape(f"{path}: ") + ".*" + re.escape(message)):
+        phri.Robot.from_description(path)

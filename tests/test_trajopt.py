@@ -85,7 +85,7 @@ def test_the_reference_objective_is_the_one_phri_minimises(name, solved) -> None
 def test_without_smoothing_and_penalties_the_objective_is_features_weighted_cost(robot) -> None:
     names = ["efficiency", "table", "coffee", "laptop", "human"]
     features = phri.Features(robot, peers.study_features(names), scene=peers.STUDY_SCENE)
-    opt = phri.TrajectoryOptimizer(features, 31, smoothing=0.0)
+    opt = phri.TrajectoryOptimizer(features, 31, smoothing=0.0, speed_limits=False, collisions=False)
     problem = peers.study_problem("laptop")
     rng = np.random.default_rng(9)
     w = np.array([1.0, 0.5, 2.0, 10.0, 10.0])
@@ -191,11 +191,11 @@ def test_bad_input_is_a_typed_error(robot) -> None:
         opt.objective(np.zeros((5, 7)), w)
     features = phri.Features(robot, ["efficiency", "table"])
     with pytest.raises(ex.InvalidParameterError, match="waypoints"):
-        phri.TrajectoryOptimizer(features, 2)
+        phri.TrajectoryOptimizer(features, 2, duration=15.0)
     with pytest.raises(ex.InvalidParameterError, match="max_step"):
         phri.TrajectoryOptimizer(features, 31, max_step=-np.ones(7))
     with pytest.raises(ex.UnknownNameError):
-        phri.TrajectoryOptimizer(features, 31, clearance=[("no_such_frame", 0.0)])
+        phri.TrajectoryOptimizer(features, 31, duration=15.0, clearance=[("no_such_frame", 0.0)])
 
 
 def test_solve_releases_the_gil() -> None:
@@ -335,3 +335,63 @@ def test_rescaled_weights_plan_the_same_path_on_100_waypoints(name, solved, robo
         # Unscaled, the same weights pose another trade-off: a visibly different plan.
         other, _ = peers.phri_optimizer(fine).solve(problem.weights, fine.start, fine.goal)
         assert np.abs(_at(other, times) - _at(plan31, times)).max() > 0.1
+
+
+def test_speed_limits_come_from_the_duration_unless_given_or_turned_off(robot) -> None:
+    task = phri.load_task("table")
+    features = task.feature_set(robot)
+    spacing = task.duration / (task.waypoints - 1)
+    opt = phri.TrajectoryOptimizer(features, task.waypoints, duration=task.duration)
+    np.testing.assert_allclose(opt.max_step, 0.5 * robot.velocity_limits * spacing, rtol=1e-15)
+    slow = phri.TrajectoryOptimizer(features, 11, duration=30.0, speed_fraction=0.25)
+    np.testing.assert_allclose(slow.max_step, 0.25 * robot.velocity_limits * 3.0, rtol=1e-15)
+    given = phri.TrajectoryOptimizer(features, max_step=np.full(7, 0.1))
+    np.testing.assert_array_equal(given.max_step, np.full(7, 0.1))
+    free = phri.TrajectoryOptimizer(features, speed_limits=False)
+    assert free.max_step is None
+    # Without speed limits the plan for the true weights moves faster than the arm may.
+    plan, info = free.solve(task.vector("true"), task.start, task.goal)
+    _, limited = opt.solve(task.vector("true"), task.start, task.goal)
+    assert info.max_step_excess == 0.0 and limited.feasible
+    fastest = np.abs(np.diff(plan, axis=0)).max(axis=0) / spacing / robot.velocity_limits
+    assert fastest.max() > 0.5 * (1 + free.STEP_TOLERANCE), fastest
+    assert "feasible=True" in repr(limited)
+    cases = [
+        ({}, r"^duration: .*pass duration=.*or max_step=.*or speed_limits=False"),
+        ({"duration": 0.0}, "duration must be a finite time > 0 s"),
+        ({"duration": np.inf}, "duration must be a finite time > 0 s"),
+        ({"duration": 15.0, "max_step": np.ones(7)}, "duration and max_step: give one"),
+        ({"speed_limits": False, "max_step": np.ones(7)}, "with speed_limits=False leave it out"),
+        ({"duration": 15.0, "speed_fraction": 0.0}, r"speed_fraction must be in \(0, 0.8\]"),
+        ({"duration": 15.0, "speed_fraction": 0.9}, r"speed_fraction must be in \(0, 0.8\]"),
+        ({"duration": 15.0, "collision_weight": 0.0}, "collision_weight must be > 0"),
+        ({"duration": 15.0, "collision_buffer": -1e-3}, "collision_buffer"),
+        ({"duration": 15.0, "collision_samples": 0}, "collision_samples must be 1..=64"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(ex.InvalidParameterError, match=message):
+            phri.TrajectoryOptimizer(features, **kwargs)
+
+
+def test_the_collision_penalty_is_in_the_objective_with_its_exact_gradient(robot) -> None:
+    """A trajectory through the table costs more with collision checks, by a penalty whose gradient
+    is the central difference of the objective."""
+    task = phri.load_task("table")
+    features = task.feature_set(robot)
+    on = phri.TrajectoryOptimizer(features, task.waypoints, duration=task.duration)
+    off = phri.TrajectoryOptimizer(features, task.waypoints, duration=task.duration, collisions=False)
+    xi = np.linspace(task.start, task.goal, task.waypoints)
+    xi[:, 1] -= 0.5 * np.sin(np.linspace(0.0, np.pi, task.waypoints))  # the shoulder dips: into the table
+    w = task.vector("true")
+    cost, penalty, grad = on.objective(xi, w)
+    cost0, penalty0, _ = off.objective(xi, w)
+    assert penalty - penalty0 > 1.0 and cost - cost0 == pytest.approx(penalty - penalty0, rel=1e-12)
+    h = 1e-6
+    rng = np.random.default_rng(3)
+    for _ in range(12):
+        i, j = rng.integers(1, task.waypoints - 1), rng.integers(0, 7)
+        up, down = xi.copy(), xi.copy()
+        up[i, j] += h
+        down[i, j] -= h
+        fd = (on.objective(up, w)[0] - on.objective(down, w)[0]) / (2 * h)
+        assert fd == pytest.approx(grad[i, j], rel=1e-5, abs=1e-4), (i, j)

@@ -23,6 +23,8 @@ pub struct PyFeatures {
     frame: String,
     /// Per keep-out feature: its name, circle centre (x, y) [m] and radius [m].
     circles: Vec<(String, (f64, f64), f64)>,
+    /// The scene the features were made with (empty if none): the one plans keep clear of.
+    pub(crate) scene: Py<PyScene>,
 }
 
 fn output<'py>(py: Python<'py>, values: Vec<f64>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
@@ -147,6 +149,7 @@ impl PyFeatures {
     #[new]
     #[pyo3(signature = (robot, features, *, scene = None, frame = None, ranges = None))]
     fn new(
+        py: Python<'_>,
         robot: PyRef<'_, PyRobot>,
         features: &Bound<'_, PyAny>,
         scene: Option<PyRef<'_, PyScene>>,
@@ -180,7 +183,18 @@ impl PyFeatures {
                 circles.push((spec.name.clone(), (c.x, c.y), k.radius));
             }
         }
-        Ok(PyFeatures { set, n, frame, circles })
+        let scene = match scene {
+            Some(s) => s.into(),
+            None => py.get_type::<PyScene>().call0()?.cast_into::<PyScene>()?.unbind(),
+        };
+        Ok(PyFeatures { set, n, frame, circles, scene })
+    }
+
+    /// The scene the features were made with (an empty Scene if none was given): the objects a
+    /// `TrajectoryOptimizer` for these features keeps the robot clear of.
+    #[getter]
+    fn scene(&self, py: Python<'_>) -> Py<PyScene> {
+        self.scene.clone_ref(py)
     }
 
     /// Each keep-out feature's circle: {name: ((x, y) centre [m], radius [m])}, placed by the scene.

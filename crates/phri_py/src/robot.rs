@@ -4,12 +4,14 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use nalgebra::{DMatrix, Matrix3, Matrix6xX, Vector3};
-use numpy::{PyArray1, PyArrayDyn, PyArrayMethods};
-use phri_core::{FrameId, RobotData, RobotModel};
+use numpy::{PyArray1, PyArray2, PyArrayDyn, PyArrayMethods};
+use phri_core::collision::Sphere;
+use phri_core::{FrameId, PhriError, RobotData, RobotModel};
 use pyo3::prelude::*;
 
-use crate::arrays::{rows, same_batch, vector, ArrayIn, Rows};
+use crate::arrays::{matrix, rows, same_batch, vector, ArrayIn, Rows};
 use crate::errors::{error, IntoPy, Kind};
+use crate::scene::PyScene;
 
 /// A serial-chain robot (kinematics and rigid-body dynamics), read from a URDF.
 #[pyclass(name = "Robot", module = "phri._phri")]
@@ -40,6 +42,26 @@ impl PyRobot {
     fn frame(&self, name: &str) -> PyResult<FrameId> {
         self.model.frame_id(name).py_err()
     }
+
+    /// A robot with `model` and this robot's frames.
+    fn derived(&self, model: RobotModel) -> Self {
+        let mut robot = PyRobot::new(model);
+        robot.frames = self.frames.clone();
+        robot
+    }
+}
+
+/// The model carrying the collision geometry of the URDF at `path` as body `name` at `frame`;
+/// errors in the file name the path.
+fn attach_urdf_file(model: RobotModel, name: &str, frame: FrameId, path: &std::path::Path) -> phri_core::Result<RobotModel> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| PhriError::Urdf { arg: "path".into(), reason: format!("cannot read '{}': {e}", path.display()) })?;
+    model.with_attached_urdf(name, frame, &text).map_err(|e| match e {
+        PhriError::Urdf { arg, reason } if arg == "urdf" => {
+            PhriError::Urdf { arg: "path".into(), reason: format!("'{}': {reason}", path.display()) }
+        }
+        other => other,
+    })
 }
 
 /// A fresh array with `shape`, optionally led by the batch size.
@@ -101,8 +123,24 @@ impl PyRobot {
         let text: String = d.call_method0("urdf_text")?.extract()?;
         let (base, tip): (String, String) = (d.getattr("base")?.extract()?, d.getattr("tip")?.extract()?);
         let source: String = d.getattr("source")?.extract()?;
-        let model =
+        let mut model =
             RobotModel::from_urdf_str(&text, Some(&base), Some(&tip)).map_err(|e| error(Kind::Urdf, format!("{source}: {e}")))?;
+        // What the robot carries (the JACO2's cup): its collision geometry joins the model's.
+        for carried in d.getattr("carried")?.try_iter()? {
+            let carried = carried?;
+            let name: String = carried.getattr("name")?.extract()?;
+            let frame: String = carried.getattr("frame")?.extract()?;
+            let key = format!("carried.{name}");
+            let id = model.frame_id(&frame).map_err(|e| error(Kind::UnknownName, format!("{source}: key '{key}.frame': {e}")))?;
+            let text: String = carried.call_method0("urdf_text")?.extract()?;
+            model = model.with_attached_urdf(&name, id, &text).map_err(|e| {
+                let why = match e {
+                    PhriError::Urdf { reason, .. } => reason,
+                    other => other.to_string(),
+                };
+                error(Kind::Urdf, format!("{source}: key '{key}.urdf': {why}"))
+            })?;
+        }
         let mut frames = RobotFrames::default();
         for (key, slot) in
             [("feature_frame", &mut frames.feature), ("hand_frame", &mut frames.hand), ("cup_frame", &mut frames.cup)]
@@ -157,9 +195,99 @@ impl PyRobot {
             None => Matrix3::zeros(),
         };
         let model = (*self.model).clone().with_payload(id, mass, com, inertia).py_err()?;
-        let mut robot = PyRobot::new(model);
-        robot.frames = self.frames.clone();
-        Ok(robot)
+        Ok(self.derived(model))
+    }
+
+    /// Names of the collision bodies, in the order of `scene_distances`' rows: the links with
+    /// collision geometry (a union of spheres fitted to their URDF's boxes, cylinders, capsules
+    /// and spheres, which covers them) and what was added (`with_collision_spheres`, a carried
+    /// object such as the cup).
+    #[getter]
+    fn collision_bodies(&self) -> Vec<String> {
+        self.model.collision().bodies().iter().map(|b| b.name.clone()).collect()
+    }
+
+    /// Whether planning can check collisions: the robot has collision bodies and every link with
+    /// collision geometry has spheres (a mesh has none until given by `with_collision_spheres`).
+    #[getter]
+    fn collision_complete(&self) -> bool {
+        self.model.collision().is_complete()
+    }
+
+    /// Why collisions cannot be checked (a link with a mesh, no collision geometry at all), or
+    /// None when `collision_complete`.
+    #[getter]
+    fn collision_incomplete_reason(&self) -> Option<String> {
+        self.model.collision().incomplete_reason(&self.model.name)
+    }
+
+    /// Body `name`'s spheres: (centres (k, 3) in the body's frame [m], radii (k,) [m], that frame's
+    /// name).
+    #[allow(clippy::type_complexity)]
+    fn collision_spheres<'py>(
+        &self,
+        py: Python<'py>,
+        name: &str,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, String)> {
+        let bodies = self.model.collision().bodies();
+        let body = bodies.iter().find(|b| b.name == name).ok_or_else(|| {
+            let known: Vec<&str> = bodies.iter().map(|b| b.name.as_str()).collect();
+            let known = if known.is_empty() { "none (the robot has no collision model)".to_string() } else { known.join(", ") };
+            error(Kind::UnknownName, format!("name: unknown collision body '{name}'; known: {known}"))
+        })?;
+        let centers: Vec<f64> = body.spheres.iter().flat_map(|s| s.center.iter().copied()).collect();
+        let radii: Vec<f64> = body.spheres.iter().map(|s| s.radius).collect();
+        let frame = self.model.frames[body.frame.0].name.clone();
+        Ok((PyArray1::from_vec(py, centers).reshape([body.spheres.len(), 3])?, PyArray1::from_vec(py, radii), frame))
+    }
+
+    /// A copy of this robot whose collision body `name` is the union of spheres at `centers`
+    /// (k, 3) in `frame` [m] with `radii` (k,) [m]: a link's fitted spheres replaced (e.g. for a
+    /// link whose collision geometry is a mesh), or a new body (a tool, a carried object) added.
+    fn with_collision_spheres(&self, name: &str, frame: &str, centers: ArrayIn<'_>, radii: ArrayIn<'_>) -> PyResult<Self> {
+        let id = self.frame(frame)?;
+        let (centers, k) = matrix("centers", &centers, None, 3)?;
+        if k == 0 {
+            return Err(error(Kind::Shape, "centers must have shape (N, 3) with N >= 1 (at least one sphere), got (0, 3)"));
+        }
+        let radii = vector("radii", &radii, k)?;
+        if let Some(r) = radii.iter().find(|r| **r <= 0.0) {
+            return Err(error(Kind::InvalidParameter, format!("radii must be distances > 0 m, got {r}")));
+        }
+        let spheres =
+            centers.chunks_exact(3).zip(radii.iter()).map(|(c, &r)| Sphere::new(Vector3::from_column_slice(c), r)).collect();
+        let model = (*self.model).clone().with_collision_spheres(name, id, spheres).py_err()?;
+        Ok(self.derived(model))
+    }
+
+    /// A copy of this robot carrying the object the URDF at `path` describes (e.g. a cup): the
+    /// collision geometry of its links (joined to its root by fixed joints) as body `name`,
+    /// attached at `frame` (the URDF's root frame is `frame`). Only the geometry: a carried
+    /// object's mass is `with_payload`'s.
+    fn with_attached_urdf(&self, name: &str, frame: &str, path: PathBuf) -> PyResult<Self> {
+        let id = self.frame(frame)?;
+        Ok(self.derived(attach_urdf_file((*self.model).clone(), name, id, &path).py_err()?))
+    }
+
+    /// The smallest signed distance [m] of each collision body (`collision_bodies`) to each object
+    /// of `scene` (its `names`), negative where they overlap, without leaving any pair out; `q`
+    /// (n,) → (bodies, objects), (N, n) → (N, bodies, objects). Measured on the bodies' spheres,
+    /// which cover the links: never more than a link's own distance.
+    fn scene_distances<'py>(
+        &mut self,
+        py: Python<'py>,
+        q: ArrayIn<'py>,
+        scene: PyRef<'py, PyScene>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let q = rows("q", &q, self.model.nq())?;
+        let shape = [self.model.collision().bodies().len(), scene.scene.objects().len()];
+        if shape[0] * shape[1] == 0 {
+            return output(py, Vec::new(), q.batch, &shape); // no bodies or no objects: nothing to measure
+        }
+        self.map_rows(py, &[("q", &q)], &shape, |m, d, x, out| {
+            m.forward_kinematics(x[0], d)?;
+            m.collision().scene_distances(m, d, &scene.scene, out)
+        })
     }
 
     /// Robot name from the URDF.

@@ -1,14 +1,20 @@
 //! `phri.TrajectoryOptimizer`: eq. 4, ξ_R = argmin w·Φ(ξ), released from the GIL while it runs.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
+use phri_core::collision::{CollisionChecker, SELF_MARGIN};
 use phri_core::features::FeatureSet;
-use phri_core::trajopt::{Clearance, KinematicCurvature, PlanLevels, TrajectoryOptimizer, TrajoptInfo, TrajoptParams};
+use phri_core::trajopt::{
+    Clearance, CollisionParams, KinematicCurvature, PlanLevels, TrajectoryOptimizer, TrajoptInfo, TrajoptParams,
+    CLEARANCE_TOLERANCE, STEP_TOLERANCE,
+};
+use phri_core::{PhriError, RobotModel};
 use pyo3::prelude::*;
 
 use crate::arrays::{matrix, vector, ArrayIn};
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{error, to_py, IntoPy, Kind};
 use crate::features::PyFeatures;
 
 /// What a solve did (the core's `TrajoptInfo`, read-only).
@@ -48,23 +54,33 @@ impl PyTrajoptInfo {
         self.0.cost
     }
 
-    /// Final penalty part of the cost (clearance and max_step) [cost].
+    /// Final penalty part of the cost (clearance, max_step and collisions) [cost].
     #[getter]
     fn penalty(&self) -> f64 {
         self.0.penalty
     }
 
-    /// Largest clearance violation of the plan [m] (0 when satisfied or unused).
+    /// Largest violation of a clearance or a collision margin along the plan's executed curve [m]
+    /// (0 when all are kept or none is set).
     #[getter]
     fn max_violation(&self) -> f64 {
         self.0.max_violation
     }
 
-    /// Largest joint step beyond `max_step` between consecutive waypoints [rad] (0 without
-    /// max_step); much more than gradient/(2·step_weight) means the goal is too far for the duration.
+    /// Largest joint move per segment of the executed curve (the cubic's speed times the waypoint
+    /// spacing) beyond `max_step` [rad] (0 without max_step); much more than the penalty's give,
+    /// gradient/(2·step_weight), means the goal is too far for the duration.
     #[getter]
     fn max_step_excess(&self) -> f64 {
         self.0.max_step_excess
+    }
+
+    /// Whether the plan keeps every clearance and collision margin within CLEARANCE_TOLERANCE [m]
+    /// and every joint within `max_step` by STEP_TOLERANCE [1] along its executed curve (whether
+    /// or not the solve converged). An infeasible plan is not safe to execute.
+    #[getter]
+    fn feasible(&self) -> bool {
+        self.0.feasible
     }
 
     /// Whether the solve met a tolerance (rather than an iteration or time cap).
@@ -81,24 +97,49 @@ impl PyTrajoptInfo {
 
     fn __repr__(&self) -> String {
         let i = &self.0;
+        let py_bool = |b: bool| if b { "True" } else { "False" };
         format!(
-            "TrajoptInfo(iterations={}, coarse_iterations={}, evaluations={}, cost={:.6}, penalty={:.3e}, max_violation={:.3e}, max_step_excess={:.3e}, converged={}, seconds={:.3e})",
-            i.iterations, i.coarse_iterations, i.evaluations, i.cost, i.penalty, i.max_violation, i.max_step_excess, i.converged, i.seconds
+            "TrajoptInfo(iterations={}, coarse_iterations={}, evaluations={}, cost={:.6}, penalty={:.3e}, max_violation={:.3e}, max_step_excess={:.3e}, feasible={}, converged={}, seconds={:.3e})",
+            i.iterations,
+            i.coarse_iterations,
+            i.evaluations,
+            i.cost,
+            i.penalty,
+            i.max_violation,
+            i.max_step_excess,
+            py_bool(i.feasible),
+            py_bool(i.converged),
+            i.seconds
         )
     }
 }
 
-/// Trajectory optimisation over `waypoints` rows with fixed start and goal, joint limits as
-/// bounds, `clearance` = [(frame, min_z [m]), ...] keeping frame origins above a height, and
-/// `max_step` [rad] bounding each joint's move between waypoints (velocity limit × spacing); both
-/// are quadratic penalties (weights `clearance_weight`, `step_weight`). The solver is projected
-/// Newton on the block-tridiagonal Hessian. `kinematic_curvature` says how the Newton model
-/// treats the second derivatives of the kinematics of the table, coffee and origin features and
-/// the clearance: "gauss-newton" leaves them out, "exact" includes them, "settled" (the default)
-/// leaves them out until the model's active set settles and includes them from then on.
-/// `coarsening` (default 3; 0 or 1 for none) solves first on coarser copies of the problem with
-/// about 1/`coarsening` of the segments each, down to `coarsest` waypoints (multiresolution: a
-/// cold plan starts from the coarse plan; see `phri_core::trajopt`).
+/// Trajectory optimisation over `waypoints` rows with fixed start and goal and the joint limits
+/// as bounds, safe by default:
+/// - Speed limits: `max_step` [rad] bounds each joint's move between waypoints. Without it, with
+///   `speed_limits` (the default) it is `speed_fraction` × the robot's velocity limits × the
+///   waypoint spacing `duration`/(waypoints − 1), so `duration` [s] (how long the plan is
+///   executed) is needed; `speed_limits=False` plans without speed limits.
+/// - Collisions: with `collisions` (the default) every collision body of the features' robot
+///   (`Robot.collision_bodies`, the carried cup included) keeps each object's margin from the
+///   features' `scene`, and, with `self_collision`, `SELF_MARGIN` from the bodies it can meet
+///   (pairs in contact in every pose are left out: `excluded_pairs`), along the executed cubic
+///   between waypoints. A quadratic penalty `collision_weight` [cost per m²] aims at each margin
+///   plus `collision_buffer` [m] at `collision_samples` points per segment. A robot without a
+///   complete collision model is a PlanningError; `collisions=False` plans without the checks.
+/// - `clearance` = [(frame, min_z [m]), ...] keeps frame origins above a height.
+///
+/// The penalties are quadratic (weights `clearance_weight`, `step_weight`, `collision_weight`);
+/// a solve's `TrajoptInfo.feasible` says whether its plan keeps them all (within
+/// `CLEARANCE_TOLERANCE` [m] and `STEP_TOLERANCE` [1]) and `closest_pair` which pair came
+/// nearest. The solver is projected Newton on the block-tridiagonal Hessian.
+/// `kinematic_curvature` says how the Newton model treats the second derivatives of the
+/// kinematics of the table, coffee and origin features and the clearance: "gauss-newton" leaves
+/// them out, "exact" includes them, "settled" (the default) leaves them out until the model's
+/// active set settles and includes them from then on. `coarsening` (default 3; 0 or 1 for none)
+/// solves first on coarser copies of the problem with about 1/`coarsening` of the segments each,
+/// down to `coarsest` waypoints (multiresolution: a cold plan starts from the coarse plan; see
+/// `phri_core::trajopt`).
 #[pyclass(name = "TrajectoryOptimizer", module = "phri._phri")]
 pub struct PyTrajectoryOptimizer {
     pub(crate) optimizer: TrajectoryOptimizer,
@@ -122,11 +163,83 @@ impl PyTrajectoryOptimizer {
     }
 }
 
+/// Largest `speed_fraction` [1]: the executed cubic runs up to 1 + STEP_TOLERANCE times faster
+/// than the chords the step penalty holds, so this keeps it within the velocity limits.
+fn max_speed_fraction() -> f64 {
+    1.0 / (1.0 + STEP_TOLERANCE)
+}
+
+/// The per-joint step limit [rad]: `max_step` as given, or from the velocity limits and `duration`
+/// (see the class docs); empty for none.
+fn step_limits(
+    model: &RobotModel,
+    waypoints: usize,
+    max_step: Option<&ArrayIn<'_>>,
+    duration: Option<f64>,
+    speed_fraction: f64,
+    speed_limits: bool,
+) -> PyResult<Vec<f64>> {
+    let invalid = |m: String| Err(error(Kind::InvalidParameter, m));
+    if let Some(d) = duration {
+        if !(d.is_finite() && d > 0.0) {
+            return invalid(format!("duration must be a finite time > 0 s, got {d}"));
+        }
+    }
+    let top = max_speed_fraction();
+    if !(speed_fraction > 0.0 && speed_fraction <= top) {
+        return invalid(format!(
+            "speed_fraction must be in (0, {top}] (above it the executed cubic can exceed the velocity limits), got {speed_fraction}"
+        ));
+    }
+    match (max_step, duration, speed_limits) {
+        (Some(_), Some(_), _) => invalid(
+            "duration and max_step: give one (duration sets max_step from the velocity limits), not both".into(),
+        ),
+        (Some(_), None, false) => invalid("max_step is a speed limit: with speed_limits=False leave it out".into()),
+        (Some(a), None, true) => Ok(vector("max_step", a, model.nq())?.into_owned()),
+        (None, Some(d), true) => {
+            let spacing = d / (waypoints.max(2) - 1) as f64;
+            Ok(model.velocity_limits().iter().map(|v| speed_fraction * v * spacing).collect())
+        }
+        (None, None, true) => invalid(
+            "duration: the plan's duration [s] is needed to keep the joints within their velocity limits; \
+             pass duration= (e.g. task.duration), or max_step= [rad per waypoint], or speed_limits=False to plan without speed limits"
+                .into(),
+        ),
+        (None, _, false) => Ok(Vec::new()),
+    }
+}
+
+/// The collision checks for `features` (their robot against their scene), or None without.
+fn collision_params(
+    features: &PyFeatures,
+    collisions: bool,
+    self_collision: bool,
+    weight: f64,
+    buffer: f64,
+    samples: usize,
+) -> PyResult<Option<CollisionParams>> {
+    if !collisions {
+        return Ok(None);
+    }
+    let model = features.set.model();
+    let scene = &features.scene.get().scene;
+    let checker = CollisionChecker::new(model, scene, self_collision.then_some(SELF_MARGIN)).map_err(|e| match e {
+        PhriError::Planning { reason } => {
+            error(Kind::Planning, format!("collisions: {reason}; or pass collisions=False to plan without collision checks"))
+        }
+        other => to_py(other),
+    })?;
+    Ok(Some(CollisionParams { weight, buffer, samples, ..CollisionParams::new(Arc::new(checker)) }))
+}
+
 #[pymethods]
 impl PyTrajectoryOptimizer {
     #[new]
     #[pyo3(signature = (
-        features, waypoints = 31, *, clearance = None, clearance_weight = 1e3, max_iterations = 500,
+        features, waypoints = 31, *, duration = None, speed_fraction = 0.5, speed_limits = true,
+        collisions = true, self_collision = true, collision_weight = 1e4, collision_buffer = 0.004,
+        collision_samples = 4, clearance = None, clearance_weight = 1e3, max_iterations = 500,
         max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-9, smoothing = 0.05,
         max_step = None, step_weight = 1e3, kinematic_curvature = "settled", coarsening = 3, coarsest = 8
     ))]
@@ -134,6 +247,14 @@ impl PyTrajectoryOptimizer {
     fn new(
         features: PyRef<'_, PyFeatures>,
         waypoints: usize,
+        duration: Option<f64>,
+        speed_fraction: f64,
+        speed_limits: bool,
+        collisions: bool,
+        self_collision: bool,
+        collision_weight: f64,
+        collision_buffer: f64,
+        collision_samples: usize,
         clearance: Option<Vec<(String, f64)>>,
         clearance_weight: f64,
         max_iterations: usize,
@@ -159,10 +280,7 @@ impl PyTrajectoryOptimizer {
             Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
             Some(s) => return Err(error(Kind::InvalidParameter, format!("max_time must be a finite time > 0 s, got {s}"))),
         };
-        let max_step = match &max_step {
-            Some(a) => vector("max_step", a, model.nq())?.into_owned(),
-            None => Vec::new(),
-        };
+        let max_step = step_limits(&model, waypoints, max_step.as_ref(), duration, speed_fraction, speed_limits)?;
         let kinematic_curvature = match kinematic_curvature {
             "gauss-newton" => KinematicCurvature::GaussNewton,
             "settled" => KinematicCurvature::Settled,
@@ -174,6 +292,8 @@ impl PyTrajectoryOptimizer {
                 ));
             }
         };
+        let collision =
+            collision_params(&features, collisions, self_collision, collision_weight, collision_buffer, collision_samples)?;
         let params = TrajoptParams {
             max_iterations,
             max_time,
@@ -183,6 +303,7 @@ impl PyTrajectoryOptimizer {
             clearance,
             max_step,
             step_weight,
+            collision,
             kinematic_curvature,
             coarsening,
             coarsest,
@@ -190,6 +311,50 @@ impl PyTrajectoryOptimizer {
         };
         let optimizer = TrajectoryOptimizer::new(&set, waypoints, params).py_err()?;
         Ok(PyTrajectoryOptimizer { optimizer, features: set })
+    }
+
+    /// A plan is feasible when no margin or clearance is violated by more than this along its
+    /// executed curve [m].
+    #[classattr]
+    const CLEARANCE_TOLERANCE: f64 = CLEARANCE_TOLERANCE;
+
+    /// ... and no joint moves faster along the executed cubic than its `max_step` allows by more
+    /// than this fraction [1].
+    #[classattr]
+    const STEP_TOLERANCE: f64 = STEP_TOLERANCE;
+
+    /// Clearance kept between two collision bodies of the robot with `self_collision` [m].
+    #[classattr]
+    const SELF_MARGIN: f64 = SELF_MARGIN;
+
+    /// The per-joint step limit between consecutive waypoints the plans keep [rad] (given as
+    /// `max_step` or set from `duration`), or None without speed limits.
+    #[getter]
+    fn max_step<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
+        let m = &self.optimizer.params().max_step;
+        (!m.is_empty()).then(|| PyArray1::from_slice(py, m))
+    }
+
+    /// Whether plans are checked for collisions (`collisions=True`).
+    #[getter]
+    fn collisions(&self) -> bool {
+        self.optimizer.params().collision.is_some()
+    }
+
+    /// The (body, object or body) pairs left out of the collision checks because they are within
+    /// their margin in every sampled pose (a link and its neighbour at their joint, a base on its
+    /// table); empty without collision checks.
+    #[getter]
+    fn excluded_pairs(&self) -> Vec<(String, String)> {
+        self.optimizer.params().collision.as_ref().map(|c| c.checker.excluded().to_vec()).unwrap_or_default()
+    }
+
+    /// After a solve with collision checks: (body, object or body, distance [m], margin [m]) of the
+    /// pair nearest to (or furthest into) its margin along the last plan's executed curve; None
+    /// before a solve, without collision checks, or without any checked pair.
+    #[getter]
+    fn closest_pair(&self) -> Option<(String, String, f64, f64)> {
+        self.optimizer.closest_pair().map(|v| (v.body.clone(), v.other.clone(), v.distance, v.margin))
     }
 
     /// Number of waypoints N of the plans.

@@ -1,5 +1,6 @@
 """Robot descriptions: per robot a URDF and, beside it, a ``robot.toml`` naming the modelled chain
-(base and tip links) and the frames phri uses (the features' point, the hand, the cup).
+(base and tip links), the frames phri uses (the features' point, the hand, the cup) and what the
+robot carries (one ``[carried.<name>]`` table per object: its URDF and the frame it is held at).
 
 ``Robot.jaco2()`` and ``Robot.from_description(path)`` read them through :func:`load`; the
 simulation takes its frame names from the same description, so each lives in one file.
@@ -21,9 +22,35 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["RobotDescription", "load"]
+__all__ = ["CarriedObject", "RobotDescription", "load"]
 
-DESCRIPTION_KEYS = ("urdf", "base", "tip", "feature_frame", "hand_frame", "cup_frame")
+DESCRIPTION_KEYS = ("urdf", "base", "tip", "feature_frame", "hand_frame", "cup_frame", "carried")
+CARRIED_KEYS = ("urdf", "frame")
+#: The carried object whose frame is the description's `cup_frame`.
+CUP = "cup"
+
+
+@dataclass(frozen=True)
+class CarriedObject:
+    """An object the robot holds rigidly (the JACO2's cup): its URDF (whose collision geometry
+    joins the robot's collision model, ``Robot.with_attached_urdf``) and the frame its root is
+    held at."""
+
+    source: str
+    name: str
+    urdf: Path
+    frame: str
+
+    def urdf_text(self) -> str:
+        """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
+        return _read(self.source, f"carried.{self.name}.urdf", self.urdf)
+
+
+def _read(source: str, key: str, path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{source}: key '{key}': cannot read {path} ({e})") from None
 
 
 @dataclass(frozen=True)
@@ -37,14 +64,14 @@ class RobotDescription:
     tip: str
     feature_frame: str | None = None
     hand_frame: str | None = None
+    #: Where the robot holds the cup: the key `cup_frame`, or the frame of [carried.cup].
     cup_frame: str | None = None
+    #: What the robot carries, in the order of the file's tables.
+    carried: tuple[CarriedObject, ...] = ()
 
     def urdf_text(self) -> str:
         """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
-        try:
-            return self.urdf.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
-            raise ConfigError(f"{self.source}: key 'urdf': cannot read {self.urdf} ({e})") from None
+        return _read(self.source, "urdf", self.urdf)
 
 
 def load(name_or_path: str | Path) -> RobotDescription:
@@ -63,6 +90,28 @@ def load(name_or_path: str | Path) -> RobotDescription:
         raise ConfigError(f"{source}: not valid TOML ({e})") from None
     r = Reader(source, data, allowed=DESCRIPTION_KEYS)
     frames = {key: r.optional_string(key) for key in ("feature_frame", "hand_frame", "cup_frame")}
+    carried = _carried(r, path.parent)
+    cup = next((c for c in carried if c.name == CUP), None)
+    if cup is not None:  # the cup's frame has one home: its [carried.cup] table
+        if frames["cup_frame"] not in (None, cup.frame):
+            raise r.fail(
+                "cup_frame", f"left out or the frame of [carried.{CUP}] ({cup.frame!r})", frames["cup_frame"]
+            )
+        frames["cup_frame"] = cup.frame
     return RobotDescription(
-        source, path.parent / r.string("urdf"), r.string("base"), r.string("tip"), **frames
+        source, path.parent / r.string("urdf"), r.string("base"), r.string("tip"), **frames, carried=carried
     )
+
+
+def _carried(r: Reader, folder: Path) -> tuple[CarriedObject, ...]:
+    """The [carried.<name>] tables; each URDF path is relative to the description."""
+    table = r.get("carried", {})
+    if not isinstance(table, dict):
+        raise r.fail("carried", "a table of object tables, e.g. [carried.cup]", table)
+    objects = []
+    for name, spec in table.items():
+        if not isinstance(spec, dict):
+            raise r.fail(f"carried.{name}", "a table with urdf and frame", spec)
+        c = Reader(r.source, spec, f"carried.{name}.", CARRIED_KEYS)
+        objects.append(CarriedObject(r.source, name, folder / c.string("urdf"), c.string("frame")))
+    return tuple(objects)

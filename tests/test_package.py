@@ -197,7 +197,7 @@ def test_the_core_and_the_cli_work_with_numpy_only(tmp_path: Path) -> None:
         assert robot.gravity(q).shape == (7,)
         task = phri.load_task("table")
         features = task.feature_set(robot)
-        optimizer = phri.TrajectoryOptimizer(features, clearance=[(robot.hand_frame, 0.0)])
+        optimizer = phri.TrajectoryOptimizer(features, duration=task.duration)
         plan, info = optimizer.solve(task.vector("true"), task.start, task.goal)
         assert plan.shape == (task.waypoints, 7)
         for argv in (["tasks"], ["study", "s", "--no-progress"], ["report", "s"], ["demo", "--out", "d"],

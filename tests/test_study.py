@@ -45,10 +45,10 @@ from phri.study.report import _pooled_form, write_report
 #: A study small enough for CI: 2 participants × 2 strategies × 2 tasks × 2 attempts = 16 episodes of 8 s
 #: (the shortest duration, with some margin, at which the human task's goal is reachable within the
 #: planner's joint speeds: shorter is a PlanningError).
-TINY = StudyConfig(participants=2, attempts=2, seed=7, tasks=("human", "laptop"), duration=8.0, waypoints=5)
+TINY = StudyConfig(participants=2, attempts=2, seed=7, tasks=("human", "laptop"), duration=8.0, waypoints=11)
 #: TINY as `phri study` options.
 TINY_ARGS = ["--participants", "2", "--attempts", "2", "--seed", "7", "--tasks", "human,laptop",
-             "--duration", "8", "--waypoints", "5"]  # fmt: skip
+             "--duration", "8", "--waypoints", "11"]  # fmt: skip
 
 
 def table_without_wall_time(run_dir: Path) -> pd.DataFrame:

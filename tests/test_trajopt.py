@@ -330,7 +330,10 @@ def test_rescaled_weights_plan_the_same_path_on_100_waypoints(name, solved, robo
     assert info.converged, info
     times = np.linspace(0.0, 1.0, 601)
     gap = np.abs(_at(plan100, times) - _at(plan31, times)).max()
-    assert gap <= 0.02, f"{name}: the 100-waypoint plan strays {gap:.3f} rad from the 31-waypoint one"
+    # Within 0.06 rad (the unscaled weights give another path, 0.36 rad away): the first and last
+    # segments step at 2/3 of max_step (the executed cubic starts and ends at rest), and a segment
+    # lasts 0.5 s on 31 waypoints but 0.15 s on 100, so the plans differ near the ends.
+    assert gap <= 0.06, f"{name}: the 100-waypoint plan strays {gap:.3f} rad from the 31-waypoint one"
     if name == "table":
         # Unscaled, the same weights pose another trade-off: a visibly different plan.
         other, _ = peers.phri_optimizer(fine).solve(problem.weights, fine.start, fine.goal)
@@ -362,8 +365,8 @@ def test_speed_limits_come_from_the_duration_unless_given_or_turned_off(robot) -
         ({"duration": np.inf}, "duration must be a finite time > 0 s"),
         ({"duration": 15.0, "max_step": np.ones(7)}, "duration and max_step: give one"),
         ({"speed_limits": False, "max_step": np.ones(7)}, "with speed_limits=False leave it out"),
-        ({"duration": 15.0, "speed_fraction": 0.0}, r"speed_fraction must be in \(0, 0.8\]"),
-        ({"duration": 15.0, "speed_fraction": 0.9}, r"speed_fraction must be in \(0, 0.8\]"),
+        ({"duration": 15.0, "speed_fraction": 0.0}, r"speed_fraction must be in \(0, 0.66+\d*\]"),
+        ({"duration": 15.0, "speed_fraction": 0.9}, r"speed_fraction must be in \(0, 0.66+\d*\]"),
         ({"duration": 15.0, "collision_weight": 0.0}, "collision_weight must be > 0"),
         ({"duration": 15.0, "collision_buffer": -1e-3}, "collision_buffer"),
         ({"duration": 15.0, "collision_samples": 0}, "collision_samples must be 1..=64"),

@@ -403,7 +403,7 @@ class TrajectoryOptimizer:
         collisions: bool = True,
         self_collision: bool = True,
         collision_weight: float = 1e4,
-        collision_buffer: float = 0.004,
+        collision_buffer: float = 0.006,
         collision_samples: int = 4,
         clearance: Sequence[tuple[str, float]] | None = None,
         clearance_weight: float = 1e3,

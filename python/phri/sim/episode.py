@@ -54,8 +54,6 @@ STRATEGIES = ("impedance", "learning")
 RULES = UPDATE_RULES
 #: Plans move each joint at most this fraction of its velocity limit (a margin for tracking).
 VELOCITY_MARGIN = 0.5
-#: A plan may come this much closer than a margin (TrajoptInfo.feasible's tolerance) [m].
-CLEARANCE_TOLERANCE = 1e-3
 #: The JACO2's joint count: the length of every per-joint setting below.
 JOINTS = 7
 #: The study's interaction thresholds, joints 1..7 [N·m] (the detector's default).
@@ -231,7 +229,7 @@ class Planner:
         """Raises PlanningError, naming the task file, the cause and the violated pair, unless the
         plan just made (for the task's `weights` weights) is feasible and converged."""
         task = self.task
-        if info.max_violation > CLEARANCE_TOLERANCE:
+        if info.max_violation > TrajectoryOptimizer.CLEARANCE_TOLERANCE:
             pair = self.optimizer.closest_pair
             what = (
                 f"'{pair[0]}' comes within {pair[2]:.3f} m of '{pair[1]}' (margin {pair[3]:.3f} m)"

@@ -146,14 +146,16 @@ pub(super) fn executed_worst(
     worst
 }
 
-/// Largest per-segment joint move of the executed curve beyond `max_step` [rad per segment]: the
-/// cubic's |dq/du| at [`CHECK_SAMPLES`] points per segment (its speed in units of the waypoint
-/// spacing), at least 0.
-pub(super) fn executed_step_excess(max_step: &[f64], traj: &[f64]) -> f64 {
+/// Largest per-segment joint move of the executed curve beyond `max_step` [rad per segment], and
+/// the largest as a fraction of that joint's `max_step` [1]: the cubic's |dq/du| at
+/// [`CHECK_SAMPLES`] points per segment (its speed in units of the waypoint spacing); both at
+/// least 0.
+pub(super) fn executed_step_excess(max_step: &[f64], traj: &[f64]) -> (f64, f64) {
     let n = max_step.len();
     if n == 0 {
-        return 0.0;
+        return (0.0, 0.0);
     }
+    let mut relative: f64 = 0.0;
     let m = traj.len() / n;
     let mut worst: f64 = 0.0;
     for b in 1..m {
@@ -171,10 +173,11 @@ pub(super) fn executed_step_excess(max_step: &[f64], traj: &[f64]) -> f64 {
                     }
                 }
                 worst = worst.max(v.abs() - limit);
+                relative = relative.max((v.abs() - limit) / limit);
             }
         }
     }
-    worst
+    (worst, relative)
 }
 
 #[cfg(test)]
@@ -201,6 +204,6 @@ mod tests {
                 fastest = fastest.max(qd[0].abs()).max(qd[1].abs());
             }
         }
-        assert!((executed_step_excess(&[0.0; 2], &traj) - fastest).abs() < 1e-12);
+        assert!((executed_step_excess(&[1e-300; 2], &traj).0 - fastest).abs() < 1e-12);
     }
 }

@@ -46,7 +46,10 @@ use crate::collision::Violation;
 pub use levels::PlanLevels;
 use levels::{Coarse, LevelsOut, Start};
 use newton::{NewtonWorkspace, SolverState};
-pub use params::{Clearance, CollisionParams, KinematicCurvature, TrajoptInfo, TrajoptParams, CLEARANCE_TOLERANCE, STEP_TOLERANCE};
+pub use params::{
+    Clearance, CollisionParams, KinematicCurvature, TrajoptInfo, TrajoptParams, CLEARANCE_TOLERANCE, DEFAULT_COLLISION_BUFFER,
+    DEFAULT_COLLISION_SAMPLES, DEFAULT_COLLISION_WEIGHT, STEP_TOLERANCE,
+};
 
 /// A reusable optimiser for trajectories of `waypoints` × `dof` (workspaces sized once).
 #[derive(Clone)]
@@ -307,9 +310,9 @@ impl TrajectoryOptimizer {
             self.solve_prepared(features, weights, deadline, start_mode, levels);
         let traj = std::mem::take(&mut self.traj);
         let max_violation = self.violation(features, &traj);
-        let max_step_excess = collision::executed_step_excess(&self.params.max_step, &traj);
+        let (max_step_excess, relative_step_excess) = collision::executed_step_excess(&self.params.max_step, &traj);
         self.traj = traj;
-        let step_ok = self.params.max_step.iter().all(|l| max_step_excess <= STEP_TOLERANCE * l);
+        let step_ok = relative_step_excess <= STEP_TOLERANCE;
         let feasible = max_violation <= CLEARANCE_TOLERANCE && step_ok;
         Ok(TrajoptInfo {
             iterations,

@@ -165,7 +165,7 @@ def test_an_unknown_key_with_no_close_match_lists_the_allowed_keys_only(tmp_path
             "key 'features.table.upper' must be a finite number (leave it out for no upper bound), got inf",
         ),
         ("lower = 0.0", "lower = -inf", "key 'features.table.lower' must be a finite number, got -inf"),
-        ("[-0.405, 0.0, -0.1216]", "[-0.405, 0.0, -inf]", "key 'scene.table.position' must be a list of 3"),
+        ("[-0.405, 0.0, -0.4516]", "[-0.405, 0.0, -inf]", "key 'scene.table.position' must be a list of 3"),
         ("radius = 0.15", "radius = inf", "key 'scene.person.radius' must be a finite number, got inf"),
         ("duration = 15.0", "duration = 1" + "0" * 400, "key 'duration' must be a finite number"),
         ("start = [104.2,", "start = [1" + "0" * 400 + ",", "key 'start' must be a list of 7 finite numbers"),
@@ -317,7 +317,7 @@ def test_shipped_tasks_place_the_study_objects(name) -> None:
     assert task.scene == phri.load_task("laptop").scene  # one scene for the whole study
     assert task.scene.names == ["table", "laptop", "person"]
     table, laptop, person = task.scene.objects
-    assert table.top == -0.1016 and table.shape == "box"
+    assert table.top == pytest.approx(-0.1016, abs=1e-12) and table.shape == "box"
     np.testing.assert_array_equal(laptop.position, [-0.7929, 0.0, -0.0891])
     assert (person.kind, person.shape, person.radius, person.length) == ("person", "cylinder", 0.15, 1.7)
     assert task.feature_frame is None  # the robot's: link_7
@@ -342,11 +342,11 @@ def test_tasks_survive_pickling_for_worker_processes() -> None:
 def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
     text = _shipped_text("human")
     path = tmp_path / "moved.toml"
-    path.write_text(text.replace("position = [0.0, 0.2, 0.7484]", "position = [0.1, 0.5, 0.7484]")
+    path.write_text(text.replace("position = [0.0, 0.45, 0.7484]", "position = [0.1, 0.5, 0.7484]")
                     .replace("radius = 0.4 ", "radius = 0.3 "))  # fmt: skip
     task = phri.load_task(path)
     np.testing.assert_array_equal(task.scene["person"].position, [0.1, 0.5, 0.7484])
-    assert task.keep_out_circle("human") == ((0.1, 0.5), 0.3)
+    assert task.keep_out_circle("human") == ((0.1, 0.25), 0.3)  # the torso moved, the offset kept
     xi = np.linspace(task.start, task.goal, task.waypoints)
     assert not np.array_equal(
         task.feature_set(robot).phi(xi), phri.load_task("human").feature_set(robot).phi(xi)
@@ -399,7 +399,7 @@ def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
         ("[scene.laptop]", "[scene.person]", "not valid TOML"),  # a name twice
         ('keep_out = "person"', "keep_out = 3", "key 'features.human.keep_out' must be a string, got 3"),
         (
-            "position = [0.0, 0.2, 0.7484]",
+            "position = [0.0, 0.45, 0.7484]",
             "position = [0.0, 0.2]",
             "key 'scene.person.position' must be a list of 3 finite numbers, got [0.0, 0.2]",
         ),

@@ -297,7 +297,7 @@ class ImpedanceController:
         wall_margin: float = 0.005,
         wall_band: float = 0.01,
         wall_stiffness: float = 8000.0,
-        wall_damping: float = 60.0,
+        wall_damping: float = 200.0,
     ) -> ImpedanceController: ...
     @property
     def wall_force(self) -> float: ...

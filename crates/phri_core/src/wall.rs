@@ -2,7 +2,7 @@
 //! body of the arm at least a margin from the furniture, whatever the reference says and however
 //! the person pushes (on the table task the person pushes the cup down toward the table).
 //!
-//! Each sphere pair closer than margin + band to a piece of furniture gets a normal force
+//! The closest sphere pair of each body–furniture pair within margin + band gets a normal force
 //! F = k·(margin + band − d) + c·max(0, −ḋ) [N] along the distance's gradient, applied as the torque
 //! F·∂d/∂q. The person is not a wall: their hand touching the arm is the point of the interaction,
 //! and plans keep clear of their body.
@@ -22,15 +22,15 @@ pub struct WallParams {
     pub margin: f64,
     /// The wall starts acting this much farther out [m] (default 1 cm).
     pub band: f64,
-    /// Its stiffness k [N/m] (default 8000: 80 N at the margin, against a firm push of 30–40 N).
+    /// Its stiffness k [N/m] (default 8000: 80 N per body at the margin, against a firm push of 30–40 N).
     pub stiffness: f64,
-    /// Its damping c on approach [N·s/m] (default 60).
+    /// Its damping c on approach [N·s/m] (default 200: about critical for a link of 1 kg).
     pub damping: f64,
 }
 
 impl Default for WallParams {
     fn default() -> Self {
-        WallParams { margin: 0.005, band: 0.01, stiffness: 8000.0, damping: 60.0 }
+        WallParams { margin: 0.005, band: 0.01, stiffness: 8000.0, damping: 200.0 }
     }
 }
 
@@ -70,6 +70,8 @@ pub struct VirtualWall {
     checker: Arc<CollisionChecker>,
     data: RobotData,
     scratch: ProximityScratch,
+    /// The gradient of the closest sphere pair of the pair being visited.
+    closest: Vec<f64>,
 }
 
 impl VirtualWall {
@@ -78,32 +80,58 @@ impl VirtualWall {
         params.check()?;
         let furniture: Vec<_> = scene.objects().iter().filter(|o| o.kind() == ObjectKind::Furniture).cloned().collect();
         let checker = CollisionChecker::new(robot, &Scene::new(furniture)?, None)?;
-        Ok(VirtualWall { params, checker: Arc::new(checker), data: robot.data(), scratch: ProximityScratch::default() })
+        Ok(VirtualWall {
+            params,
+            checker: Arc::new(checker),
+            data: robot.data(),
+            scratch: ProximityScratch::default(),
+            closest: vec![0.0; robot.nq()],
+        })
     }
 
     pub fn params(&self) -> &WallParams {
         &self.params
     }
 
-    /// Adds the wall's torque at (q [rad], q̇ [rad/s]) to `tau` [N·m].
+    /// Adds the wall's torque at (q [rad], q̇ [rad/s]) to `tau` [N·m]: for each body–furniture pair
+    /// within reach, a force at its closest sphere pair (one per pair, so that a body's several
+    /// spheres do not add up to a force its joints cannot give).
     pub fn add_torque(&mut self, robot: &RobotModel, q: &[f64], qd: &[f64], tau: &mut [f64]) -> WallStatus {
         robot.forward_kinematics_unchecked(q, &mut self.data);
         let p = self.params;
         let reach = p.margin + p.band;
         let mut status = WallStatus { force: 0.0, distance: f64::INFINITY };
-        // The checker measures from each object's planning margin + band; the wall, from its own reach.
-        self.checker.for_each_near(robot, &self.data, &mut self.scratch, reach, |near, g| {
-            if near.distance >= reach {
+        let n = robot.nq();
+        self.closest.resize(n, 0.0);
+        let (closest, mut pair, mut nearest) = (&mut self.closest, usize::MAX, f64::INFINITY);
+        let mut apply = |distance: f64, g: &[f64], status: &mut WallStatus| {
+            if distance >= reach {
                 return;
             }
-            status.distance = status.distance.min(near.distance);
+            status.distance = status.distance.min(distance);
             let rate: f64 = g.iter().zip(qd).map(|(g, v)| g * v).sum();
-            let force = p.stiffness * (reach - near.distance) + p.damping * (-rate).max(0.0);
+            let force = p.stiffness * (reach - distance) + p.damping * (-rate).max(0.0);
             status.force += force;
             for (t, g) in tau.iter_mut().zip(g) {
                 *t += force * g;
             }
+        };
+        // The checker measures from each object's planning margin + band; the wall, from its reach.
+        self.checker.for_each_near(robot, &self.data, &mut self.scratch, reach, |near, g| {
+            if near.pair != pair {
+                if pair != usize::MAX {
+                    apply(nearest, closest, &mut status);
+                }
+                (pair, nearest) = (near.pair, f64::INFINITY);
+            }
+            if near.distance < nearest {
+                nearest = near.distance;
+                closest.copy_from_slice(g);
+            }
         });
+        if pair != usize::MAX {
+            apply(nearest, closest, &mut status);
+        }
         status
     }
 }

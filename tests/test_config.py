@@ -326,7 +326,7 @@ def test_shipped_tasks_place_the_study_objects(name) -> None:
 def test_the_keep_out_features_are_the_authors_circles() -> None:
     # Centres, radii and samples as in the authors' code: laptop (-0.7929, -0.1), human (0, 0.2), 0.4 m.
     assert phri.load_task("laptop").keep_out_circle("laptop") == ((-0.7929, -0.1), 0.4)
-    assert phri.load_task("human").keep_out_circle("human") == ((0.0, 0.2), 0.4)
+    assert phri.load_task("human").keep_out_circle("human") == (pytest.approx((0.0, 0.2), abs=1e-12), 0.4)
     assert phri.load_task("human").keep_out_circle("laptop") is None
     for name in ("laptop", "human"):
         assert phri.load_task(name).features[1].params["samples"] == 4
@@ -342,11 +342,11 @@ def test_tasks_survive_pickling_for_worker_processes() -> None:
 def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
     text = _shipped_text("human")
     path = tmp_path / "moved.toml"
-    path.write_text(text.replace("position = [0.0, 0.45, 0.7484]", "position = [0.1, 0.5, 0.7484]")
+    path.write_text(text.replace("position = [-0.2, 0.85, 0.7484]", "position = [0.1, 0.5, 0.7484]")
                     .replace("radius = 0.4 ", "radius = 0.3 "))  # fmt: skip
     task = phri.load_task(path)
     np.testing.assert_array_equal(task.scene["person"].position, [0.1, 0.5, 0.7484])
-    assert task.keep_out_circle("human") == ((0.1, 0.25), 0.3)  # the torso moved, the offset kept
+    assert task.keep_out_circle("human") == (pytest.approx((0.3, -0.15)), 0.3)  # the torso moved, the offset kept
     xi = np.linspace(task.start, task.goal, task.waypoints)
     assert not np.array_equal(
         task.feature_set(robot).phi(xi), phri.load_task("human").feature_set(robot).phi(xi)
@@ -399,7 +399,7 @@ def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
         ("[scene.laptop]", "[scene.person]", "not valid TOML"),  # a name twice
         ('keep_out = "person"', "keep_out = 3", "key 'features.human.keep_out' must be a string, got 3"),
         (
-            "position = [0.0, 0.45, 0.7484]",
+            "position = [-0.2, 0.85, 0.7484]",
             "position = [0.0, 0.2]",
             "key 'scene.person.position' must be a list of 3 finite numbers, got [0.0, 0.2]",
         ),

@@ -208,7 +208,7 @@ def test_folder_holds_table_logs_and_manifest(reference: Path) -> None:
     # Every episode has its log with the time series and the desired plan.
     for log in table["log"]:
         with np.load(reference / log) as data:
-            assert data["q"].shape[1] == 7 and data["desired"].shape == (5, 7)
+            assert data["q"].shape[1] == 7 and data["desired"].shape == (11, 7)
             assert len(data["t"]) == pytest.approx(801, abs=1)  # 8 s at 100 Hz
     assert (table["effort"] >= 0).all() and (table["interaction_time"] >= 0).all()
 
@@ -288,7 +288,7 @@ def test_broken_or_foreign_folders_are_clear_errors(reference: Path, tmp_path: P
     for text, match in [
         ("{not json", "study.json: not a readable study manifest"),
         ('{"format": "other"}', "not a phri study manifest"),
-        (json.dumps({"format": "phri-study", "version": 1, "config": {"participants": 0}}), "participants"),
+        (json.dumps({"format": "phri-study", "version": 2, "config": {"participants": 0}}), "participants"),
         (json.dumps({"format": "phri-study", "version": 99, "config": {}}), "version"),
     ]:
         (broken / "study.json").write_text(text)
@@ -1016,7 +1016,7 @@ def test_an_unreachable_ray_cluster_is_a_clear_error(
 def test_cli_study_resume_and_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run_dir = str(tmp_path / "s")
     common = ["--participants", "2", "--attempts", "1", "--tasks", "human,laptop", "--duration", "8",
-              "--waypoints", "4", "--backend", "serial", "--no-progress"]  # fmt: skip
+              "--waypoints", "11", "--backend", "serial", "--no-progress"]  # fmt: skip
     assert cli(["study", run_dir, *common, "--max-episodes", "3"]) == 0
     assert "3 of 8 episodes" in capsys.readouterr().out
     # A different study into the same folder: refused.

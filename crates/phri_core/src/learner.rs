@@ -118,10 +118,9 @@ pub fn infeasibility(info: &TrajoptInfo, optimizer: &TrajectoryOptimizer) -> Str
     let mut reasons = Vec::new();
     if info.max_violation > crate::trajopt::CLEARANCE_TOLERANCE {
         match optimizer.closest_pair() {
-            Some(v) => reasons.push(format!(
-                "'{}' comes within {:.4} m of '{}' (margin {:.3} m)",
-                v.body, v.distance, v.other, v.margin
-            )),
+            Some(v) => {
+                reasons.push(format!("'{}' comes within {:.4} m of '{}' (margin {:.3} m)", v.body, v.distance, v.other, v.margin))
+            }
             None => reasons.push(format!("a clearance is violated by {:.4} m", info.max_violation)),
         }
     }

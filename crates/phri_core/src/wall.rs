@@ -36,7 +36,12 @@ impl Default for WallParams {
 
 impl WallParams {
     fn check(&self) -> Result<()> {
-        for (arg, v) in [("wall_margin", self.margin), ("wall_band", self.band), ("wall_stiffness", self.stiffness), ("wall_damping", self.damping)] {
+        for (arg, v) in [
+            ("wall_margin", self.margin),
+            ("wall_band", self.band),
+            ("wall_stiffness", self.stiffness),
+            ("wall_damping", self.damping),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(PhriError::invalid(arg, format!("must be finite and >= 0, got {v}")));
             }

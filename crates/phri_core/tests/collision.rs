@@ -24,7 +24,8 @@ const WAYPOINTS: usize = 31;
 
 fn pose(task: &str, key: &str) -> Vec<f64> {
     let doc = task_file(task);
-    let v: Vec<f64> = doc[key].as_array().unwrap().iter().map(|v| v.as_float().unwrap_or_else(|| v.as_integer().unwrap() as f64)).collect();
+    let v: Vec<f64> =
+        doc[key].as_array().unwrap().iter().map(|v| v.as_float().unwrap_or_else(|| v.as_integer().unwrap() as f64)).collect();
     common::deg(v.try_into().unwrap())
 }
 
@@ -161,8 +162,22 @@ fn the_study_plans_keep_every_margin_along_the_executed_curve() {
 #[test]
 fn variations_of_the_study_plans_keep_every_margin() {
     // Another start pose, the laptop moved, two learned features at once.
-    assert_safe_plan("table", &["efficiency", "table"], &[1.0, 1.0], &task_scene("table"), &pose("human", "start"), &pose("table", "goal"));
-    assert_safe_plan("laptop", &["efficiency", "laptop"], &[1.0, 10.0], &task_scene("laptop"), &pose("coffee", "start"), &pose("laptop", "goal"));
+    assert_safe_plan(
+        "table",
+        &["efficiency", "table"],
+        &[1.0, 1.0],
+        &task_scene("table"),
+        &pose("human", "start"),
+        &pose("table", "goal"),
+    );
+    assert_safe_plan(
+        "laptop",
+        &["efficiency", "laptop"],
+        &[1.0, 10.0],
+        &task_scene("laptop"),
+        &pose("coffee", "start"),
+        &pose("laptop", "goal"),
+    );
     let moved: Vec<SceneObject> = task_scene("laptop")
         .objects()
         .iter()
@@ -176,8 +191,22 @@ fn variations_of_the_study_plans_keep_every_margin() {
         })
         .collect();
     let moved = Scene::new(moved).unwrap();
-    assert_safe_plan("laptop", &["efficiency", "laptop"], &[1.0, 10.0], &moved, &pose("laptop", "start"), &pose("laptop", "goal"));
-    assert_safe_plan("table", &["efficiency", "table", "coffee"], &[1.0, 1.0, 1.0], &task_scene("table"), &pose("table", "start"), &pose("table", "goal"));
+    assert_safe_plan(
+        "laptop",
+        &["efficiency", "laptop"],
+        &[1.0, 10.0],
+        &moved,
+        &pose("laptop", "start"),
+        &pose("laptop", "goal"),
+    );
+    assert_safe_plan(
+        "table",
+        &["efficiency", "table", "coffee"],
+        &[1.0, 1.0, 1.0],
+        &task_scene("table"),
+        &pose("table", "start"),
+        &pose("table", "goal"),
+    );
 }
 
 #[test]
@@ -275,7 +304,8 @@ fn the_wall_pushes_a_body_away_from_the_furniture_only_within_its_reach() {
         .fold(f64::INFINITY, f64::min);
     let at = |gap: f64| {
         let d = lowest;
-        let pose = Isometry3::from_parts(Translation3::from(table.position() + Vector3::z() * (d - gap)), UnitQuaternion::identity());
+        let pose =
+            Isometry3::from_parts(Translation3::from(table.position() + Vector3::z() * (d - gap)), UnitQuaternion::identity());
         Scene::new(vec![SceneObject::new("table", *table.shape(), pose, table.margin(), ObjectKind::Furniture).unwrap()]).unwrap()
     };
     let zero = vec![0.0; 7];

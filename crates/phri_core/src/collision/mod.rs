@@ -120,7 +120,11 @@ impl CollisionModel {
     pub fn scene_distances(&self, robot: &RobotModel, data: &RobotData, scene: &Scene, out: &mut [f64]) -> Result<()> {
         let objects = scene.objects();
         if out.len() != self.bodies.len() * objects.len() {
-            return Err(PhriError::shape("out", format!("({}, {})", self.bodies.len(), objects.len()), format!("{} values", out.len())));
+            return Err(PhriError::shape(
+                "out",
+                format!("({}, {})", self.bodies.len(), objects.len()),
+                format!("{} values", out.len()),
+            ));
         }
         for (b, body) in self.bodies.iter().enumerate() {
             let pose = robot.frame_pose(body.frame, data);
@@ -190,7 +194,10 @@ impl RobotModel {
             attached.add_urdf_link(link, frame, &pose)?;
         }
         if let Some((link, why)) = attached.unfitted.first() {
-            return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("link '{link}' has collision geometry that is {why}") });
+            return Err(PhriError::Urdf {
+                arg: "urdf".into(),
+                reason: format!("link '{link}' has collision geometry that is {why}"),
+            });
         }
         let spheres: Vec<Sphere> = attached.bodies.into_iter().flat_map(|b| b.spheres).collect();
         if spheres.is_empty() {

@@ -162,7 +162,8 @@ pub(super) fn executed_step_excess(max_step: &[f64], traj: &[f64]) -> (f64, f64)
         for k in 0..=CHECK_SAMPLES {
             let u = k as f64 / CHECK_SAMPLES as f64;
             // d/du of the Hermite basis.
-            let (d00, d10, d01, d11) = (6.0 * u * u - 6.0 * u, 3.0 * u * u - 4.0 * u + 1.0, 6.0 * u - 6.0 * u * u, 3.0 * u * u - 2.0 * u);
+            let (d00, d10, d01, d11) =
+                (6.0 * u * u - 6.0 * u, 3.0 * u * u - 4.0 * u + 1.0, 6.0 * u - 6.0 * u * u, 3.0 * u * u - 2.0 * u);
             let (ta, tb) = (if b > 1 { 0.5 * d10 } else { 0.0 }, if b < m - 1 { 0.5 * d11 } else { 0.0 });
             let w = [-ta, d00 - tb, d01 + ta, tb];
             for (j, limit) in max_step.iter().enumerate() {

@@ -38,11 +38,11 @@ use std::time::Instant;
 
 use nalgebra::Matrix6xX;
 
+use crate::collision::Violation;
 use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::features::FeatureSet;
 use collision::CollisionScratch;
 use cost::{Buffer, Derivatives, Model, Scratch};
-use crate::collision::Violation;
 pub use levels::PlanLevels;
 use levels::{Coarse, LevelsOut, Start};
 use newton::{NewtonWorkspace, SolverState};

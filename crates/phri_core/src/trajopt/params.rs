@@ -69,7 +69,10 @@ impl CollisionParams {
             return Err(PhriError::invalid("collision_weight", "must be > 0"));
         }
         if !(1..=64).contains(&self.samples) {
-            return Err(PhriError::invalid("collision_samples", format!("must be 1..=64 points per segment, got {}", self.samples)));
+            return Err(PhriError::invalid(
+                "collision_samples",
+                format!("must be 1..=64 points per segment, got {}", self.samples),
+            ));
         }
         Ok(())
     }

@@ -346,7 +346,10 @@ def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
                     .replace("radius = 0.4 ", "radius = 0.3 "))  # fmt: skip
     task = phri.load_task(path)
     np.testing.assert_array_equal(task.scene["person"].position, [0.1, 0.5, 0.7484])
-    assert task.keep_out_circle("human") == (pytest.approx((0.3, -0.15)), 0.3)  # the torso moved, the offset kept
+    assert task.keep_out_circle("human") == (
+        pytest.approx((0.3, -0.15)),
+        0.3,
+    )  # the torso moved, the offset kept
     xi = np.linspace(task.start, task.goal, task.waypoints)
     assert not np.array_equal(
         task.feature_set(robot).phi(xi), phri.load_task("human").feature_set(robot).phi(xi)

@@ -65,7 +65,11 @@ def test_study_episodes_keep_the_arm_off_the_furniture(world, name) -> None:
         d = furniture_distances(world.model, task, q)
         assert d.min() >= WALL_MARGIN - TOLERANCE, f"{name}/{strategy}: a body {d.min():.4f} m from furniture"
         assert result.min_clearance <= d.min() + 1e-12
-        assert result.log_arrays["distances"].shape == (len(q), len(world.model.collision_bodies), len(task.scene))
+        assert result.log_arrays["distances"].shape == (
+            len(q),
+            len(world.model.collision_bodies),
+            len(task.scene),
+        )
         assert pybullet_contacts(world, task, q[::5]) == [], f"{name}/{strategy}: PyBullet sees contact"
 
 

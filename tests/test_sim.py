@@ -225,7 +225,9 @@ def test_bad_task_input_is_a_clear_error(world, tmp_path) -> None:
     # A table top the arm cannot stay clear of (the goal pose lies in it): the pair is named.
     table = phri.SceneObject("table", "box", [-0.405, 0.0, 0.0], size=[0.81, 1.62, 0.8])
     high = phri.Task(**{**task.__dict__, "scene": phri.Scene([table])})
-    with pytest.raises(PlanningError, match=r"cannot keep the arm clear: '[a-z0-9_]+' comes within .* of 'table'"):
+    with pytest.raises(
+        PlanningError, match=r"cannot keep the arm clear: '[a-z0-9_]+' comes within .* of 'table'"
+    ):
         Planner(high, world)
     with pytest.raises(InvalidParameterError, match="strategy"):
         EpisodeConfig(strategy="ignore")
@@ -262,7 +264,9 @@ def test_a_task_without_a_scene_plans_clear_of_nothing_but_itself(world) -> None
     free = phri.Task(**{**task.__dict__, "scene": phri.Scene()})
     planner = Planner(free, world)
     assert planner.optimizer.collisions
-    assert all(other.startswith("j2s7s300") or other == "cup" for _, other in planner.optimizer.excluded_pairs)
+    assert all(
+        other.startswith("j2s7s300") or other == "cup" for _, other in planner.optimizer.excluded_pairs
+    )
 
 
 @pytest.mark.parametrize(

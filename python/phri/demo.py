@@ -117,9 +117,8 @@ def run_demo(
                 f.flush()
                 print(
                     f"{task_name:<8} {strategy:<10} {r.effort:>9.1f} {r.interaction_time:>6.1f} "
-                    f"{r.cost:>8.3f} "
-                    f"{r.desired_cost:>8.3f} {r.final_weights[task.task_index]:>7.3f} {r.min_clearance:>6.3f} "
-                    f"{r.wall_contact_time:>6.2f} {r.wall_time:>6.2f}"
+                    f"{r.cost:>8.3f} {r.desired_cost:>8.3f} {r.final_weights[task.task_index]:>7.3f} "
+                    f"{r.min_clearance:>6.3f} {r.wall_contact_time:>6.2f} {r.wall_time:>6.2f}"
                 )
             _plot(folder, task, per_task)
     seconds = time.perf_counter() - began

@@ -28,9 +28,12 @@ pub struct WallParams {
     pub damping: f64,
 }
 
+/// The documented defaults of [`WallParams`].
+pub const DEFAULT_WALL: WallParams = WallParams { margin: 0.005, band: 0.01, stiffness: 8000.0, damping: 200.0 };
+
 impl Default for WallParams {
     fn default() -> Self {
-        WallParams { margin: 0.005, band: 0.01, stiffness: 8000.0, damping: 200.0 }
+        DEFAULT_WALL
     }
 }
 

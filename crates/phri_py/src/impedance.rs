@@ -10,7 +10,12 @@ use std::borrow::Cow;
 use nalgebra::DMatrix;
 use numpy::{PyArray1, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyReadonlyArray1, PyUntypedArray, PyUntypedArrayMethods};
 use phri_core::impedance::{ControlStatus, Gain, ImpedanceController, ImpedanceParams};
-use phri_core::wall::{VirtualWall, WallParams};
+use phri_core::wall::{VirtualWall, WallParams, DEFAULT_WALL};
+
+// The signature spells the core's wall defaults out (so that Python's help shows numbers).
+const _: () = assert!(
+    DEFAULT_WALL.margin == 0.005 && DEFAULT_WALL.band == 0.01 && DEFAULT_WALL.stiffness == 8000.0 && DEFAULT_WALL.damping == 200.0
+);
 use pyo3::prelude::*;
 use pyo3::Borrowed;
 
@@ -142,8 +147,7 @@ impl PyImpedanceController {
     #[new]
     #[pyo3(signature = (
         robot, *, stiffness = None, damping = None, inertia = None, gravity_compensation = true, scene = None,
-        wall = true, wall_margin = WallParams::default().margin, wall_band = WallParams::default().band,
-        wall_stiffness = WallParams::default().stiffness, wall_damping = WallParams::default().damping
+        wall = true, wall_margin = 0.005, wall_band = 0.01, wall_stiffness = 8000.0, wall_damping = 200.0
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(

@@ -10,6 +10,9 @@ use phri_core::trajopt::{
     Clearance, CollisionParams, KinematicCurvature, PlanLevels, TrajectoryOptimizer, TrajoptInfo, TrajoptParams,
     CLEARANCE_TOLERANCE, DEFAULT_COLLISION_BUFFER, DEFAULT_COLLISION_SAMPLES, DEFAULT_COLLISION_WEIGHT, STEP_TOLERANCE,
 };
+
+// The signature spells the core's defaults out (so that Python's help shows numbers): they must agree.
+const _: () = assert!(DEFAULT_COLLISION_WEIGHT == 1e4 && DEFAULT_COLLISION_BUFFER == 0.006 && DEFAULT_COLLISION_SAMPLES == 4);
 use phri_core::{PhriError, RobotModel};
 use pyo3::prelude::*;
 
@@ -238,8 +241,8 @@ impl PyTrajectoryOptimizer {
     #[new]
     #[pyo3(signature = (
         features, waypoints = 31, *, duration = None, speed_fraction = 0.5, speed_limits = true,
-        collisions = true, self_collision = true, collision_weight = DEFAULT_COLLISION_WEIGHT,
-        collision_buffer = DEFAULT_COLLISION_BUFFER, collision_samples = DEFAULT_COLLISION_SAMPLES, clearance = None, clearance_weight = 1e3, max_iterations = 500,
+        collisions = true, self_collision = true, collision_weight = 1e4,
+        collision_buffer = 0.006, collision_samples = 4, clearance = None, clearance_weight = 1e3, max_iterations = 500,
         max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-9, smoothing = 0.05,
         max_step = None, step_weight = 1e3, kinematic_curvature = "settled", coarsening = 3, coarsest = 8
     ))]

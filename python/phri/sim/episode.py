@@ -30,7 +30,7 @@ from phri._phri import (
 )
 from phri._validate import must_be
 from phri.atomic import write_atomic
-from phri.config import TABLE, Task
+from phri.config import Task
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.participant import Participant, ParticipantParams
 from phri.sim.world import HAND, World, WorldParams
@@ -359,7 +359,9 @@ def _simulate(
     dt, model = world.params.timestep, world.model
     steps = int(round(task.duration / dt)) + 1
     rows = (steps + parts.log_every - 1) // parts.log_every
-    series = {k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")}
+    series: dict[str, np.ndarray] = {
+        k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")
+    }
     #: The person's wrench at the hand (force [N], torque [N·m]); zero while nobody touches it.
     series["push"] = np.zeros((rows, 6))
     #: The virtual wall's largest total force since the previous row [N] (0: it did not act).

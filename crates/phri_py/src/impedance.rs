@@ -14,7 +14,10 @@ use phri_core::wall::{VirtualWall, WallParams, DEFAULT_WALL};
 
 // The signature spells the core's wall defaults out (so that Python's help shows numbers).
 const _: () = assert!(
-    DEFAULT_WALL.margin == 0.005 && DEFAULT_WALL.band == 0.01 && DEFAULT_WALL.stiffness == 8000.0 && DEFAULT_WALL.damping == 200.0
+    DEFAULT_WALL.margin == 0.005
+        && DEFAULT_WALL.band == 0.01
+        && DEFAULT_WALL.stiffness == 8000.0
+        && DEFAULT_WALL.damping == 200.0
 );
 use pyo3::prelude::*;
 use pyo3::Borrowed;

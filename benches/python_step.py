@@ -53,7 +53,8 @@ def main() -> None:
     features = phri.Features(robot, ["efficiency", "table"])
     learner = phri.Learner(
         features, phri.Deformation(), phri.WeightUpdate([0.0, 2.0], [1.0, 0.0], [1.0, 1.0]),
-        phri.InteractionDetector(), phri.TrajectoryOptimizer(features), [1.0, 0.0], PICK_BASIC, PLACE_LOWER,
+        phri.InteractionDetector(), phri.TrajectoryOptimizer(features, duration=15.0), [1.0, 0.0],
+        PICK_BASIC, PLACE_LOWER,
         sample_period=1e-3,
     )  # fmt: skip
     quiet = np.array([0.5, 1.0, 0.0, 0.3, 0.2, 0.1, 0.0])  # below every threshold

@@ -20,33 +20,11 @@ use std::time::Instant;
 
 use criterion::{criterion_group, BenchmarkId, Criterion, Throughput};
 use nalgebra::{DMatrix, Matrix6xX};
-use phri_benches::{jaco2, place_lower};
+use phri_benches::{configurations, jaco2, place_lower};
 use phri_core::{FrameId, RobotData, RobotModel};
 
 const NQ: usize = 7;
 const CONFIGS: usize = 1024;
-
-/// A fixed set of configurations within the JACO2 limits (continuous joints in [0, 2π)),
-/// from a seeded xorshift so the benchmark needs no RNG crate and is the same every run.
-fn configurations(model: &RobotModel, count: usize, seed: u64) -> Vec<[f64; NQ]> {
-    let mut state = seed;
-    let mut uniform = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
-    (0..count)
-        .map(|_| {
-            let mut q = [0.0; NQ];
-            for (v, j) in q.iter_mut().zip(&model.joints) {
-                let (lo, hi) = if j.lower.is_finite() { (j.lower, j.upper) } else { (0.0, std::f64::consts::TAU) };
-                *v = lo + (hi - lo) * uniform();
-            }
-            q
-        })
-        .collect()
-}
 
 /// Velocities [rad/s] and accelerations [rad/s²] to go with the configurations.
 fn rates(count: usize, seed: u64, scale: f64) -> Vec<[f64; NQ]> {

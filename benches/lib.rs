@@ -3,11 +3,12 @@
 use std::sync::Arc;
 
 use nalgebra::{Matrix6xX, Vector3, Vector6};
+use phri_core::collision::{CollisionChecker, SELF_MARGIN};
 use phri_core::deform::{DeformParams, Deformation};
 use phri_core::features::FeatureSet;
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
-use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
+use phri_core::trajopt::{Clearance, CollisionParams, TrajectoryOptimizer, TrajoptParams};
 use phri_core::update::{UpdateParams, UpdateRule, WeightUpdate};
 use phri_core::RobotModel;
 
@@ -15,7 +16,7 @@ use phri_core::RobotModel;
 /// phri_core's integration tests use).
 #[path = "../crates/phri_core/tests/common/study.rs"]
 pub mod study;
-use study::{away_from_keepout, study_features, table_top};
+use study::{away_from_keepout, study_features, table_top, task_scene};
 
 /// The shipped JACO2 description (the same file the Python package loads).
 pub const JACO2_URDF: &str = include_str!("../python/phri/robots/jaco2/j2s7s300.urdf");
@@ -23,6 +24,39 @@ pub const JACO2_URDF: &str = include_str!("../python/phri/robots/jaco2/j2s7s300.
 /// The JACO2 chain from `root` to the tool point.
 pub fn jaco2() -> RobotModel {
     RobotModel::from_urdf_str(JACO2_URDF, Some("root"), Some("j2s7s300_end_effector")).expect("shipped URDF parses")
+}
+
+/// The shipped cup the study's JACO2 carries.
+pub const CUP_URDF: &str = include_str!("../python/phri/robots/jaco2/cup.urdf");
+
+/// The JACO2 carrying the study's cup at its cup frame (as `Robot.jaco2()` does): the robot of
+/// the study's planner and learner.
+pub fn jaco2_with_cup() -> RobotModel {
+    let model = jaco2();
+    let frame = model.frame_id("j2s7s300_cup_frame").expect("cup frame exists");
+    model.with_attached_urdf("cup", frame, CUP_URDF).expect("shipped cup URDF attaches")
+}
+
+/// `count` configurations within `model`'s joint limits (continuous joints in [0, 2π)), from a
+/// seeded xorshift so the benchmarks need no RNG crate and are the same every run.
+pub fn configurations(model: &RobotModel, count: usize, seed: u64) -> Vec<[f64; 7]> {
+    let mut state = seed;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    (0..count)
+        .map(|_| {
+            let mut q = [0.0; 7];
+            for (v, j) in q.iter_mut().zip(&model.joints) {
+                let (lo, hi) = if j.lower.is_finite() { (j.lower, j.upper) } else { (0.0, std::f64::consts::TAU) };
+                *v = lo + (hi - lo) * uniform();
+            }
+            q
+        })
+        .collect()
 }
 
 /// Kinova degrees to radians.
@@ -75,26 +109,33 @@ pub fn study_tasks() -> [StudyTask; 4] {
 
 /// Task duration T [s].
 pub const DURATION: f64 = 15.0;
-/// The study planner's tool-point clearance above the table top [m] (python/phri/sim/episode.py).
-pub const HAND_CLEARANCE: f64 = 0.1016;
-/// The study planner's link_7 clearance above the table top [m].
-pub const CUP_CLEARANCE: f64 = 0.06;
 /// Plans move each joint at most this fraction of its velocity limit.
 pub const VELOCITY_MARGIN: f64 = 0.5;
 /// Waypoints of the study's plans (T = 15 s in 0.5 s steps).
 pub const STUDY_WAYPOINTS: usize = 31;
-/// The study planner's clearance penalty weight [1/m²].
-const CLEARANCE_WEIGHT: f64 = 1e3;
 
-/// The study's planner for `task` over `waypoints` waypoints, exactly as `phri.sim.Planner` builds
-/// it: features ["efficiency", task], clearance for the tool point and link_7 (weight 10³), and
-/// max_step = 0.5 × velocity limit × waypoint spacing; other parameters at their defaults.
+/// The collision checker of the study's planner for `task`: every collision body of `model` (the
+/// JACO2 with the cup) against the objects of the task file's scene, each with its margin, and
+/// against each other ([`SELF_MARGIN`]).
+pub fn study_checker(model: &RobotModel, task: &StudyTask) -> CollisionChecker {
+    assert!(
+        model.collision().bodies().iter().any(|b| b.name == "cup"),
+        "the study's planner is built for the JACO2 carrying the cup (jaco2_with_cup)"
+    );
+    CollisionChecker::new(model, &task_scene(task.name), Some(SELF_MARGIN)).expect("complete collision model")
+}
+
+/// The study's planner for `task` over `waypoints` waypoints, as `phri.sim.Planner` builds it:
+/// features ["efficiency", task] on `model` (the JACO2 with the cup, [`jaco2_with_cup`]), the full
+/// collision model against the task's scene with self-collision ([`study_checker`], the penalty's
+/// defaults), and max_step = 0.5 × velocity limit × waypoint spacing; other parameters at their
+/// defaults.
 pub fn study_planner(model: &Arc<RobotModel>, task: &StudyTask, waypoints: usize) -> (FeatureSet, TrajectoryOptimizer) {
-    planner(model, task, waypoints, CLEARANCE_WEIGHT)
+    planner(model, task, waypoints, 1.0)
 }
 
 /// The study's planning problem posed on `waypoints` waypoints with the trade-off it has on the
-/// study's 31: the planner of [`study_planner`] with the clearance weight scaled by r² (r = 30 /
+/// study's 31: the planner of [`study_planner`] with the collision weight scaled by r² (r = 30 /
 /// (waypoints − 1), as the per-waypoint features) and the weights [1, true weight] rescaled by
 /// `FeatureSet::rescale_weights`, which it returns.
 pub fn study_problem_at(
@@ -102,33 +143,71 @@ pub fn study_problem_at(
     task: &StudyTask,
     waypoints: usize,
 ) -> (FeatureSet, TrajectoryOptimizer, Vec<f64>) {
-    let r = (STUDY_WAYPOINTS - 1) as f64 / (waypoints - 1) as f64;
-    let (features, optimizer) = planner(model, task, waypoints, CLEARANCE_WEIGHT * r * r);
+    let r = resolution_ratio(waypoints);
+    let (features, optimizer) = planner(model, task, waypoints, r * r);
     let weights = features.rescale_weights(&[1.0, task.true_weight], STUDY_WAYPOINTS, waypoints).expect("two weights");
     (features, optimizer, weights)
 }
 
-fn planner(
+/// r = 30 / (waypoints − 1): the study's waypoint spacing over this one's.
+fn resolution_ratio(waypoints: usize) -> f64 {
+    (STUDY_WAYPOINTS - 1) as f64 / (waypoints - 1) as f64
+}
+
+fn study_max_step(model: &RobotModel, waypoints: usize) -> Vec<f64> {
+    let spacing = DURATION / (waypoints - 1) as f64;
+    model.velocity_limits().iter().map(|v| VELOCITY_MARGIN * v * spacing).collect()
+}
+
+fn planner(model: &Arc<RobotModel>, task: &StudyTask, waypoints: usize, weight_scale: f64) -> (FeatureSet, TrajectoryOptimizer) {
+    let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
+    let features = study_features(model.clone(), link_7, &["efficiency", task.name]);
+    let mut collision = CollisionParams::new(Arc::new(study_checker(model, task)));
+    collision.weight *= weight_scale;
+    let params = TrajoptParams { collision: Some(collision), max_step: study_max_step(model, waypoints), ..Default::default() };
+    let optimizer = TrajectoryOptimizer::new(&features, waypoints, params).expect("valid parameters");
+    (features, optimizer)
+}
+
+/// The earlier study planner's tool-point clearance above the table top [m].
+pub const HAND_CLEARANCE: f64 = 0.1016;
+/// The earlier study planner's link_7 clearance above the table top [m].
+pub const CUP_CLEARANCE: f64 = 0.06;
+/// The earlier study planner's clearance penalty weight [1/m²].
+const CLEARANCE_WEIGHT: f64 = 1e3;
+
+/// The study's planner before the collision model, the problem benches/trajopt_peers.py poses to
+/// the peers and benches/trajopt_work.py counts: features ["efficiency", task] on `model` (the bare
+/// JACO2, [`jaco2`]), the tool point and link_7 kept [`HAND_CLEARANCE`] and [`CUP_CLEARANCE`] above
+/// the table top (weight 10³), max_step as [`study_planner`]; posed on `waypoints` with the
+/// trade-off of the study's 31 (the clearance weight and the returned weights rescaled as in
+/// [`study_problem_at`]) when `rescaled`, else with the weights [1, true weight].
+pub fn clearance_problem_at(
     model: &Arc<RobotModel>,
     task: &StudyTask,
     waypoints: usize,
-    clearance_weight: f64,
-) -> (FeatureSet, TrajectoryOptimizer) {
+    rescaled: bool,
+) -> (FeatureSet, TrajectoryOptimizer, Vec<f64>) {
+    let r = if rescaled { resolution_ratio(waypoints) } else { 1.0 };
     let link_7 = model.frame_id("j2s7s300_link_7").expect("link_7 exists");
     let hand = model.frame_id("j2s7s300_end_effector").expect("tool point exists");
     let features = study_features(model.clone(), link_7, &["efficiency", task.name]);
-    let table_top = table_top();
-    let spacing = DURATION / (waypoints - 1) as f64;
+    let (top, weight) = (table_top(), CLEARANCE_WEIGHT * r * r);
     let params = TrajoptParams {
         clearance: vec![
-            Clearance { frame: hand, min_z: table_top + HAND_CLEARANCE, weight: clearance_weight },
-            Clearance { frame: link_7, min_z: table_top + CUP_CLEARANCE, weight: clearance_weight },
+            Clearance { frame: hand, min_z: top + HAND_CLEARANCE, weight },
+            Clearance { frame: link_7, min_z: top + CUP_CLEARANCE, weight },
         ],
-        max_step: model.velocity_limits().iter().map(|v| VELOCITY_MARGIN * v * spacing).collect(),
+        max_step: study_max_step(model, waypoints),
         ..Default::default()
     };
     let optimizer = TrajectoryOptimizer::new(&features, waypoints, params).expect("valid parameters");
-    (features, optimizer)
+    let weights = if rescaled {
+        features.rescale_weights(&[1.0, task.true_weight], STUDY_WAYPOINTS, waypoints).expect("two weights")
+    } else {
+        vec![1.0, task.true_weight]
+    };
+    (features, optimizer, weights)
 }
 
 /// Algorithm 1 on `task` as the simulated study runs it (initial task weight 0, the task's gain and

@@ -1,13 +1,14 @@
-//! `trajopt_work N TASK REPS [unscaled]`: REPS cold solves of a study task on N waypoints, posed
-//! with the trade-off of the study's 31 waypoints (`phri_benches::study_problem_at`: weights and
-//! clearance rescaled) or, with `unscaled`, by the study's planner with the true weight as given.
+//! `trajopt_work N TASK REPS [unscaled]`: REPS cold solves of a study task on N waypoints, on the
+//! study's problem before the collision model (tool point and link_7 clearances above the table,
+//! `phri_benches::clearance_problem_at`), posed with the trade-off of the study's 31 waypoints
+//! (weights and clearance rescaled) or, with `unscaled`, with the true weight as given.
 //! benches/trajopt_work.py runs it under callgrind: instruction counts do not move with the
 //! machine's load as times do.
 
 use std::process::ExitCode;
 use std::sync::Arc;
 
-use phri_benches::{jaco2, study_planner, study_problem_at, study_tasks};
+use phri_benches::{clearance_problem_at, jaco2, study_tasks};
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -33,12 +34,7 @@ fn main() -> ExitCode {
         return ExitCode::from(2);
     };
     let model = Arc::new(jaco2());
-    let (mut fs, mut opt, weights) = if unscaled {
-        let (fs, opt) = study_planner(&model, &task, n);
-        (fs, opt, vec![1.0, task.true_weight])
-    } else {
-        study_problem_at(&model, &task, n)
-    };
+    let (mut fs, mut opt, weights) = clearance_problem_at(&model, &task, n, !unscaled);
     let mut plan = vec![0.0; n * model.nq()];
     for _ in 0..reps {
         let info = opt.solve(&mut fs, &weights, &task.start, &task.goal, None, &mut plan).expect("valid problem");

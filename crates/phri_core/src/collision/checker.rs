@@ -1,9 +1,9 @@
 //! The pairs a plan keeps apart — every collision body against every scene object and against
 //! the bodies it can meet — and their distances with gradients in q.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{IsometryMatrix3, Point3, Rotation3, Vector3};
 
-use super::distance::signed_distance;
+use super::distance::{local, local_distance};
 use super::Sphere;
 use crate::data::RobotData;
 use crate::error::{PhriError, Result};
@@ -70,6 +70,9 @@ pub struct ProximityScratch {
 #[derive(Debug, Clone, PartialEq)]
 pub struct CollisionChecker {
     scene: Scene,
+    /// Per scene object: the base frame in its frame, and its rotation in the base frame (as
+    /// matrices: cheaper per point than the scene's quaternions).
+    object_frames: Vec<(IsometryMatrix3<f64>, Rotation3<f64>)>,
     pairs: Vec<Pair>,
     /// Names of the body pairs left out as in contact in every pose, and of the object pairs.
     excluded: Vec<(String, String)>,
@@ -111,8 +114,17 @@ impl CollisionChecker {
             }
         }
         let names = bodies.iter().map(|b| b.name.clone()).collect();
+        let object_frames = scene
+            .objects()
+            .iter()
+            .map(|o| {
+                let rotation = o.pose().rotation.to_rotation_matrix();
+                (IsometryMatrix3::from_parts(o.pose().translation, rotation).inverse(), rotation)
+            })
+            .collect();
         let mut checker = CollisionChecker {
             scene: scene.clone(),
+            object_frames,
             pairs: candidates,
             excluded: Vec::new(),
             chain_body,
@@ -236,16 +248,19 @@ impl CollisionChecker {
         let body = &bodies[pair.body];
         match pair.other {
             Other::Object(k) => {
-                let object = &self.scene.objects()[k];
-                let (shape, pose) = (object.shape(), object.pose());
-                let bound = signed_distance(shape, pose, &scratch.bounds[pair.body]).0 - body.bound.radius;
+                let shape = self.scene.objects()[k].shape();
+                let (object_t_base, rotation) = &self.object_frames[k];
+                let to_local = |p: &Vector3<f64>| (object_t_base * Point3::from(*p)).coords;
+                let bound = local_distance(shape, &to_local(&scratch.bounds[pair.body])) - body.bound.radius;
                 if bound >= within {
                     return;
                 }
                 for (s, c) in body.spheres.iter().zip(&scratch.centers[pair.body]) {
-                    let (d, n) = signed_distance(shape, pose, c);
-                    let d = d - s.radius;
+                    // The distance first; its gradient only for the spheres within.
+                    let p = to_local(c);
+                    let d = local_distance(shape, &p) - s.radius;
                     if d < within {
+                        let n = rotation * local(shape, &p).1;
                         visit(d, c, &n, None);
                     }
                 }
@@ -256,9 +271,19 @@ impl CollisionChecker {
                 if gap >= within {
                     return;
                 }
+                let other_bound = &scratch.bounds[k];
                 for (s, c) in body.spheres.iter().zip(&scratch.centers[pair.body]) {
+                    // This sphere against the other body's bound first.
+                    if (c - other_bound).norm() - s.radius - other.bound.radius >= within {
+                        continue;
+                    }
                     for (t, e) in other.spheres.iter().zip(&scratch.centers[k]) {
                         let v = c - e;
+                        // Below `within` only if |v| < reach: compared squared, without the root.
+                        let reach = within + s.radius + t.radius;
+                        if reach <= 0.0 || v.norm_squared() >= reach * reach {
+                            continue;
+                        }
                         let r = v.norm();
                         let d = r - s.radius - t.radius;
                         if d < within {
@@ -306,21 +331,37 @@ impl CollisionChecker {
     /// The pair nearest to (or furthest into) its margin for the kinematics in `data`: the one
     /// with the least distance − margin; None without pairs.
     pub fn worst(&self, robot: &RobotModel, data: &RobotData, scratch: &mut ProximityScratch) -> Option<Violation> {
+        self.worst_below(robot, data, scratch, f64::INFINITY).map(|(k, slack)| self.violation(k, slack))
+    }
+
+    /// The pair with the least distance − margin (its index and that slack [m]) for the kinematics
+    /// in `data`, among the pairs whose slack is below `below` [m]: None if there are none. The
+    /// first such pair in the checker's order on ties, as [`Self::worst`].
+    pub(crate) fn worst_below(
+        &self,
+        robot: &RobotModel,
+        data: &RobotData,
+        scratch: &mut ProximityScratch,
+        below: f64,
+    ) -> Option<(usize, f64)> {
         self.place(robot, data, scratch);
         let mut worst: Option<(usize, f64)> = None;
         for (k, pair) in self.pairs.iter().enumerate() {
             // Only sphere pairs closer than the worst so far matter (the bounds skip the rest).
-            let within = worst.map_or(f64::INFINITY, |(_, w)| w + pair.margin);
+            let within = worst.map_or(below, |(_, w)| w) + pair.margin;
             let mut nearest = f64::INFINITY;
             self.for_each_sphere_pair(robot, scratch, pair, within, |d, _, _, _| nearest = nearest.min(d));
             if nearest < within {
                 worst = Some((k, nearest - pair.margin));
             }
         }
-        worst.map(|(k, slack)| {
-            let (body, other) = self.pair_names(k);
-            Violation { body, other, distance: slack + self.pairs[k].margin, margin: self.pairs[k].margin }
-        })
+        worst
+    }
+
+    /// Pair `k` at `slack` [m] beyond its margin, named.
+    pub(crate) fn violation(&self, k: usize, slack: f64) -> Violation {
+        let (body, other) = self.pair_names(k);
+        Violation { body, other, distance: slack + self.pairs[k].margin, margin: self.pairs[k].margin }
     }
 
     /// Whether pair `k` is a body against furniture (the pairs a run-time wall acts on).

@@ -127,7 +127,7 @@ pub(super) fn executed_worst(
 ) -> Option<Violation> {
     let n = robot.nq();
     let m = traj.len() / n;
-    let mut worst: Option<Violation> = None;
+    let mut worst: Option<(usize, f64)> = None;
     let CollisionScratch { data, q, proximity } = scratch;
     for b in 1..m {
         for k in 0..=CHECK_SAMPLES {
@@ -136,14 +136,14 @@ pub(super) fn executed_worst(
             }
             cubic_point(traj, n, b, k as f64 / CHECK_SAMPLES as f64, q);
             robot.forward_kinematics_unchecked(q, data);
-            if let Some(v) = params.checker.worst(robot, data, proximity) {
-                if worst.as_ref().is_none_or(|w| v.distance - v.margin < w.distance - w.margin) {
-                    worst = Some(v);
-                }
+            // Only pairs nearer than the worst so far matter: their bounds skip the rest.
+            let below = worst.map_or(f64::INFINITY, |(_, slack)| slack);
+            if let Some(found) = params.checker.worst_below(robot, data, proximity, below) {
+                worst = Some(found);
             }
         }
     }
-    worst
+    worst.map(|(k, slack)| params.checker.violation(k, slack))
 }
 
 /// Largest per-segment joint move of the executed curve beyond `max_step` [rad per segment], and

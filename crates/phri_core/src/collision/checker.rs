@@ -13,6 +13,11 @@ use crate::scene::{ObjectKind, Scene};
 /// Clearance kept between two bodies of the robot [m].
 pub const SELF_MARGIN: f64 = 0.01;
 
+/// Body–body pairs are visited within at most this much beyond their margin [m], whatever band a
+/// query asks for: links two joints apart sit a few centimetres from each other along every plan
+/// and would otherwise cost a gradient at every point without ever coming near their margin.
+pub const SELF_BAND: f64 = 0.02;
+
 /// Poses sampled (a Halton sequence over the joint limits) to find the pairs in contact in every
 /// pose, which are left out.
 const CONTACT_SAMPLES: usize = 512;
@@ -316,7 +321,8 @@ impl CollisionChecker {
                 Other::Body(b) => Some(self.chain_body[b]),
                 Other::Object(_) => None,
             };
-            self.for_each_sphere_pair(robot, scratch, pair, pair.margin + band, |d, c, normal, e| {
+            let within = pair.margin + if other_body.is_some() { band.min(SELF_BAND) } else { band };
+            self.for_each_sphere_pair(robot, scratch, pair, within, |d, c, normal, e| {
                 grad.fill(0.0);
                 point_gradient(robot, data, body, c, normal, 1.0, &mut grad);
                 if let (Some(other), Some(e)) = (other_body, e) {

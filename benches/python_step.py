@@ -50,6 +50,12 @@ def main() -> None:
         lambda *s: controller.torque_implicit(*s, 1e-3, out=out),
         states,
     )
+    walled = phri.ImpedanceController(robot, scene=phri.load_task("table").scene)
+    timed(
+        "the same with the virtual wall (table scene)",
+        lambda *s: walled.torque_implicit(*s, 1e-3, out=out),
+        states,
+    )
     features = phri.Features(robot, ["efficiency", "table"])
     learner = phri.Learner(
         features, phri.Deformation(), phri.WeightUpdate([0.0, 2.0], [1.0, 0.0], [1.0, 1.0]),

@@ -92,7 +92,7 @@ impl VirtualWall {
             params,
             checker: Arc::new(checker),
             data: robot.data(),
-            scratch: ProximityScratch::default(),
+            scratch: ProximityScratch::for_robot(robot),
             closest: vec![0.0; robot.nq()],
         })
     }

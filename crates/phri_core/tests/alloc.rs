@@ -15,6 +15,7 @@ use phri_core::learner::{Learner, LearnerParams};
 use phri_core::reference::{Interpolation, TimedTrajectory};
 use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
 use phri_core::update::{UpdateParams, UpdateRule, WeightUpdate};
+use phri_core::wall::{VirtualWall, WallParams};
 
 struct Counting;
 
@@ -77,6 +78,19 @@ fn a_control_tick_allocates_nothing() {
     let model = Arc::new(common::jaco2());
     let params = ImpedanceParams { inertia: Some(Gain::Diagonal(vec![0.5; 7])), ..ImpedanceParams::jaco2_default() };
     let mut controller = ImpedanceController::new(model, params).unwrap();
+    // The same law with the virtual wall, at a pose where it acts (a table raised under the arm).
+    let carrying = Arc::new(common::jaco2_with_cup());
+    let mut walled = ImpedanceController::new(carrying.clone(), ImpedanceParams::jaco2_default()).unwrap();
+    let table = phri_core::scene::SceneObject::new(
+        "table",
+        phri_core::scene::Shape::Plane,
+        nalgebra::Isometry3::translation(0.0, 0.0, 0.2),
+        0.02,
+        phri_core::scene::ObjectKind::Furniture,
+    )
+    .unwrap();
+    let scene = phri_core::scene::Scene::new(vec![table]).unwrap();
+    walled.set_wall(Some(VirtualWall::new(&carrying, &scene, WallParams { band: 1.0, ..WallParams::default() }).unwrap()));
     let waypoints: Vec<f64> = (0..31 * 7).map(|i| 3.0 + 0.01 * (i as f64).sin()).collect();
     let plan = TimedTrajectory::new(waypoints.clone(), 7, 15.0, Interpolation::Cubic).unwrap();
     let mut plan2 = plan.clone();
@@ -98,6 +112,8 @@ fn a_control_tick_allocates_nothing() {
         controller.torque(&q, &qd, &q_ref, &qd_ref, &mut tau).unwrap();
         controller.torque_full(&q, &qd, &q_ref, &qd_ref, &qdd_ref, &u_h, &mut tau).unwrap();
         controller.torque_implicit(&q, &qd, &q_ref, &qd_ref, 1e-3, &mut tau).unwrap();
+        let status = walled.torque_implicit(&q, &qd, &q_ref, &qd_ref, 1e-3, &mut tau).unwrap();
+        assert!(status.wall.force > 0.0);
         if k % 100 == 0 {
             plan2.set_waypoints(&waypoints).unwrap();
         }

@@ -70,6 +70,18 @@ pub struct ProximityScratch {
     grad: Vec<f64>,
 }
 
+impl ProximityScratch {
+    /// Scratch sized for `robot` at once, so that no query allocates (a control tick).
+    pub fn for_robot(robot: &RobotModel) -> Self {
+        let bodies = robot.collision().bodies();
+        ProximityScratch {
+            centers: bodies.iter().map(|b| Vec::with_capacity(b.spheres.len())).collect(),
+            bounds: vec![Vector3::zeros(); bodies.len()],
+            grad: vec![0.0; robot.nq()],
+        }
+    }
+}
+
 /// The checked pairs of one robot in one scene (see the module docs). Immutable; queries write
 /// into a [`ProximityScratch`].
 #[derive(Debug, Clone, PartialEq)]

@@ -173,9 +173,13 @@ impl ImpedanceController {
     }
 
     /// Adds (or with None removes) a virtual wall: its torque is added to every law's output
-    /// before saturation.
-    pub fn set_wall(&mut self, wall: Option<VirtualWall>) {
+    /// before saturation. A wall made for another robot (or collision model) is an error.
+    pub fn set_wall(&mut self, wall: Option<VirtualWall>) -> Result<()> {
+        if let Some(w) = &wall {
+            w.check_robot(&self.model)?;
+        }
         self.wall = wall;
+        Ok(())
     }
 
     pub fn wall(&self) -> Option<&VirtualWall> {

@@ -124,7 +124,7 @@ pub fn infeasibility(info: &TrajoptInfo, optimizer: &TrajectoryOptimizer) -> Str
             None => reasons.push(format!("a clearance is violated by {:.4} m", info.max_violation)),
         }
     }
-    if info.max_step_excess > 0.0 {
+    if info.step_excess_ratio > crate::trajopt::STEP_TOLERANCE {
         reasons.push(format!("a joint moves {:.4} rad per segment faster than max_step allows", info.max_step_excess));
     }
     if reasons.is_empty() {
@@ -149,6 +149,9 @@ pub struct Learner {
     /// the replan's output.
     levels: PlanLevels,
     replanned: PlanLevels,
+    /// The levels of the plan the robot tracks (the last adopted): a rejected replan goes back to
+    /// them.
+    adopted: PlanLevels,
     /// Index k of the next sample instant k·sample_period.
     next_sample: f64,
     /// transition_speed × velocity limits [rad/s] (empty: switch at once).
@@ -257,6 +260,7 @@ impl Learner {
             goal: goal.to_vec(),
             plan,
             replanned: levels.clone(),
+            adopted: levels.clone(),
             levels,
             next_sample: 0.0,
             speed_limits,
@@ -430,19 +434,24 @@ impl Learner {
             Some(init),
             &mut self.replanned,
         )?;
-        self.replan_pending = self.params.replan_iterations > 0 && !info.converged;
+        let pending = self.params.replan_iterations > 0 && !info.converged;
         if !info.feasible {
-            // A budgeted replan goes on from where it stopped; the arm does not follow it.
-            if self.replan_pending {
+            if pending {
+                // A budgeted replan goes on from where it stopped; the arm does not follow it.
                 std::mem::swap(&mut self.levels, &mut self.replanned);
             } else {
+                // Rejected: later replans start again from the plan the robot tracks.
+                self.levels.clone_from(&self.adopted);
                 self.history.rejected.push(RejectedPlan { t, reason: infeasibility(&info, &self.optimizer) });
             }
+            self.replan_pending = pending;
             return Ok(info);
         }
         // Switch first: if that fails, the learner keeps the plan it is following.
         self.plan.switch_to(self.replanned.plan(), t, &self.speed_limits)?;
         std::mem::swap(&mut self.levels, &mut self.replanned);
+        self.adopted.clone_from(&self.levels);
+        self.replan_pending = pending;
         self.history.plans.push((t, self.levels.plan().to_vec()));
         Ok(info)
     }

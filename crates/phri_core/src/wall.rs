@@ -97,6 +97,14 @@ impl VirtualWall {
         })
     }
 
+    /// An error unless the wall was made for `robot` (its name and collision bodies).
+    pub fn check_robot(&self, robot: &RobotModel) -> Result<()> {
+        if self.checker.robot_name() != robot.name || self.checker.body_count() != robot.collision().bodies().len() {
+            return Err(PhriError::invalid("wall", "was made for another robot (or its collision model changed)"));
+        }
+        Ok(())
+    }
+
     pub fn params(&self) -> &WallParams {
         &self.params
     }

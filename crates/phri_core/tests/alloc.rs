@@ -90,7 +90,9 @@ fn a_control_tick_allocates_nothing() {
     )
     .unwrap();
     let scene = phri_core::scene::Scene::new(vec![table]).unwrap();
-    walled.set_wall(Some(VirtualWall::new(&carrying, &scene, WallParams { band: 1.0, ..WallParams::default() }).unwrap()));
+    walled
+        .set_wall(Some(VirtualWall::new(&carrying, &scene, WallParams { band: 1.0, ..WallParams::default() }).unwrap()))
+        .unwrap();
     let waypoints: Vec<f64> = (0..31 * 7).map(|i| 3.0 + 0.01 * (i as f64).sin()).collect();
     let plan = TimedTrajectory::new(waypoints.clone(), 7, 15.0, Interpolation::Cubic).unwrap();
     let mut plan2 = plan.clone();

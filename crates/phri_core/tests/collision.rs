@@ -269,12 +269,32 @@ fn a_learner_keeps_its_last_feasible_plan_when_a_replan_is_not() {
     let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
     let deformation = Deformation::new(DeformParams::default()).unwrap();
     let (start, goal) = (pose("table", "start"), pose("table", "goal"));
-    let mut learner =
-        Learner::new(LearnerParams::default(), fs, deformation, update, detector, opt, &[1.0, 0.0], &start, &goal).unwrap();
+    for budget in [0, 3] {
+        // A replan to convergence at once, and one spread over the next ticks.
+        let params = LearnerParams { replan_iterations: budget, ..Default::default() };
+        let (fs, opt, update) = (fs.clone(), opt.clone(), update.clone());
+        let (detector, deformation) = (detector.clone(), deformation.clone());
+        let mut learner = Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &start, &goal).unwrap();
+        check_rejected(&mut learner, budget);
+    }
+}
+
+fn check_rejected(learner: &mut Learner, budget: usize) {
     let before = learner.plan().waypoints().to_vec();
     // A push down at the hand's joints (joint 2 lifts the arm: push it the other way).
     let tau = [0.0, -20.0, 0.0, 10.0, 0.0, 0.0, 0.0];
     learner.observe(3.0, &tau).unwrap();
+    if budget > 0 {
+        // The budgeted replan goes on over the next ticks (this impossible one for ever); the arm
+        // never follows its infeasible intermediate plans.
+        assert!(learner.replan_pending());
+        for tick in 1..=300 {
+            learner.observe(3.0 + 1e-3 * tick as f64, &[0.0; 7]).unwrap();
+            assert_eq!(learner.plan().waypoints(), &before[..]);
+        }
+        assert_eq!(learner.history().plans.len(), 1);
+        return;
+    }
     let history = learner.history();
     assert_eq!(history.interactions.len(), 1);
     assert!(history.interactions[0].weights[1] > 1e5, "{:?}", history.interactions[0].weights);
@@ -311,9 +331,13 @@ fn the_wall_pushes_a_body_away_from_the_furniture_only_within_its_reach() {
     let zero = vec![0.0; 7];
     let torque = |scene: &Scene, tau: &mut [f64]| {
         let mut c = ImpedanceController::new(model.clone(), ImpedanceParams::jaco2_default()).unwrap();
-        c.set_wall(Some(VirtualWall::new(&model, scene, WallParams::default()).unwrap()));
+        c.set_wall(Some(VirtualWall::new(&model, scene, WallParams::default()).unwrap())).unwrap();
         c.torque(&q, &zero, &q, &zero, tau).unwrap()
     };
+    // A wall for another robot's collision model is refused, not a panic in the control law.
+    let mut plain = ImpedanceController::new(Arc::new(common::jaco2()), ImpedanceParams::jaco2_default()).unwrap();
+    let other = VirtualWall::new(&model, &task_scene("table"), WallParams::default()).unwrap();
+    assert!(plain.set_wall(Some(other)).unwrap_err().to_string().contains("another robot"));
     let (mut far, mut near) = (vec![0.0; 7], vec![0.0; 7]);
     let reach = WallParams::default().margin + WallParams::default().band;
     assert_eq!(torque(&at(reach + 0.002), &mut far).wall.force, 0.0);

@@ -136,7 +136,7 @@ fn gain_array<'py>(py: Python<'py>, g: &Gain) -> PyResult<Bound<'py, PyArrayDyn<
 /// With a `scene`, a virtual wall (on unless `wall=False`) adds a repulsive torque that keeps every
 /// collision body at least `wall_margin` [m] from the scene's furniture, whatever the reference and
 /// the person's push: a normal force `wall_stiffness`·(margin + `wall_band` − d) [N, N/m, m] plus
-/// `wall_damping` [N·s/m] on approach, per sphere within reach (`wall_force`, `wall_distance` tell
+/// `wall_damping` [N·s/m] on approach, at the closest spheres of each body–furniture pair within reach (`wall_force`, `wall_distance` tell
 /// what it did in the last step). The person is not a wall.
 #[pyclass(name = "ImpedanceController", module = "phri._phri")]
 pub struct PyImpedanceController {
@@ -192,7 +192,7 @@ impl PyImpedanceController {
                 }
                 other => to_py(other),
             })?;
-            controller.set_wall(Some(wall));
+            controller.set_wall(Some(wall)).py_err()?;
         }
         Ok(PyImpedanceController { controller, status: ControlStatus::default(), tau: vec![0.0; n] })
     }

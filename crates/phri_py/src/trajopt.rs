@@ -78,6 +78,13 @@ impl PyTrajoptInfo {
         self.0.max_step_excess
     }
 
+    /// The largest such excess as a fraction of its joint's max_step [1]: above STEP_TOLERANCE the
+    /// plan is infeasible.
+    #[getter]
+    fn step_excess_ratio(&self) -> f64 {
+        self.0.step_excess_ratio
+    }
+
     /// Whether the plan keeps every clearance and collision margin within CLEARANCE_TOLERANCE [m]
     /// and every joint within `max_step` by STEP_TOLERANCE [1] along its executed curve (whether
     /// or not the solve converged). An infeasible plan is not safe to execute.

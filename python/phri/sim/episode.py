@@ -175,7 +175,8 @@ class EpisodeResult:
     #: (includes the spring-back after a push; see tests for tracking with no participant at all).
     tracking_error: float
     #: Smallest distance of any collision body of the arm (or the cup) to any scene object over
-    #: the episode, at the log rate [m].
+    #: the episode, at the log rate [m]: measured to the collision spheres, which cover the links,
+    #: so a lower bound of the true clearance.
     min_clearance: float
     #: Time the virtual wall acted [s] and its largest total force [N] (0: it never acted).
     wall_contact_time: float

@@ -12,8 +12,10 @@ use crate::error::{check_finite, PhriError, Result};
 use crate::model::Transform;
 
 /// Largest radius of a sphere covering a cylinder or capsule, as a multiple of its radius [1].
-/// 1.1 puts the spheres at most 0.46 radii apart along the axis and overestimates the surface by
-/// at most a tenth of the radius (4.5 mm on the JACO2's links).
+/// 1.1 puts the spheres at most 0.92 radii apart along the axis and overestimates the side by at
+/// most a tenth of the radius (4.5 mm on the JACO2's links); the end spheres reach 0.64 radii beyond
+/// the end faces (2.6 cm past the cup's bottom). Distances to the spheres are lower bounds of the
+/// distances to the links: conservative, by up to that much.
 pub const COVER: f64 = 1.1;
 
 /// Most spheres one box is covered with (its cells grow beyond this).

@@ -13,7 +13,7 @@ pub mod fit;
 
 use nalgebra::{Point3, Vector3};
 
-pub use checker::{CollisionChecker, Near, Other, ProximityScratch, Violation, SELF_MARGIN};
+pub use checker::{CollisionChecker, Near, Other, ProximityScratch, Violation, SELF_BAND, SELF_MARGIN};
 pub use fit::Primitive;
 
 use crate::data::RobotData;

@@ -313,6 +313,7 @@ impl TrajectoryOptimizer {
         let (max_step_excess, relative_step_excess) = collision::executed_step_excess(&self.params.max_step, &traj);
         self.traj = traj;
         let step_ok = relative_step_excess <= STEP_TOLERANCE;
+        let step_excess_ratio = relative_step_excess;
         let feasible = max_violation <= CLEARANCE_TOLERANCE && step_ok;
         Ok(TrajoptInfo {
             iterations,
@@ -322,6 +323,7 @@ impl TrajectoryOptimizer {
             penalty,
             max_violation,
             max_step_excess,
+            step_excess_ratio,
             feasible,
             converged,
             seconds: began.elapsed().as_secs_f64(),

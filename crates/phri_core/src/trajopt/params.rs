@@ -44,6 +44,8 @@ pub struct CollisionParams {
 pub const DEFAULT_COLLISION_WEIGHT: f64 = 1e4;
 /// Default [`CollisionParams::buffer`] [m].
 pub const DEFAULT_COLLISION_BUFFER: f64 = 6e-3;
+/// Default [`CollisionParams::band`] [m].
+pub const DEFAULT_COLLISION_BAND: f64 = 0.05;
 /// Default [`CollisionParams::samples`] [points per segment].
 pub const DEFAULT_COLLISION_SAMPLES: usize = 4;
 
@@ -54,7 +56,7 @@ impl CollisionParams {
             checker,
             weight: DEFAULT_COLLISION_WEIGHT,
             buffer: DEFAULT_COLLISION_BUFFER,
-            band: 0.05,
+            band: DEFAULT_COLLISION_BAND,
             samples: DEFAULT_COLLISION_SAMPLES,
         }
     }
@@ -67,6 +69,14 @@ impl CollisionParams {
         }
         if !(self.weight > 0.0) {
             return Err(PhriError::invalid("collision_weight", "must be > 0"));
+        }
+        // The penalty is on from margin + buffer, and pairs are visited within margin + band (self
+        // pairs within SELF_BAND at most): the band must reach past the buffer, or the cost jumps.
+        if self.buffer > self.band.min(crate::collision::SELF_BAND) {
+            return Err(PhriError::invalid(
+                "collision_buffer",
+                format!("must be at most the band ({} m) and {} m, got {}", self.band, crate::collision::SELF_BAND, self.buffer),
+            ));
         }
         if !(1..=64).contains(&self.samples) {
             return Err(PhriError::invalid(
@@ -219,6 +229,9 @@ pub struct TrajoptInfo {
     /// spacing) beyond `max_step` [rad] (0 without max_step); much more than the penalty's give,
     /// gradient/(2·step_weight), means the goal is too far for the duration.
     pub max_step_excess: f64,
+    /// The largest such excess as a fraction of its joint's `max_step` [1] (0 without max_step):
+    /// above [`STEP_TOLERANCE`] the plan is infeasible.
+    pub step_excess_ratio: f64,
     /// The plan keeps every margin within [`CLEARANCE_TOLERANCE`] and every joint within
     /// `max_step` by [`STEP_TOLERANCE`] along its executed curve (whether or not it converged).
     pub feasible: bool,

@@ -342,12 +342,12 @@ def test_tasks_survive_pickling_for_worker_processes() -> None:
 def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
     text = _shipped_text("human")
     path = tmp_path / "moved.toml"
-    path.write_text(text.replace("position = [-0.2, 0.85, 0.7484]", "position = [0.1, 0.5, 0.7484]")
+    path.write_text(text.replace("position = [-0.2, 1.0, 0.7484]", "position = [0.1, 0.5, 0.7484]")
                     .replace("radius = 0.4 ", "radius = 0.3 "))  # fmt: skip
     task = phri.load_task(path)
     np.testing.assert_array_equal(task.scene["person"].position, [0.1, 0.5, 0.7484])
     assert task.keep_out_circle("human") == (
-        pytest.approx((0.3, -0.15)),
+        pytest.approx((0.3, -0.3)),
         0.3,
     )  # the torso moved, the offset kept
     xi = np.linspace(task.start, task.goal, task.waypoints)
@@ -402,7 +402,7 @@ def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
         ("[scene.laptop]", "[scene.person]", "not valid TOML"),  # a name twice
         ('keep_out = "person"', "keep_out = 3", "key 'features.human.keep_out' must be a string, got 3"),
         (
-            "position = [-0.2, 0.85, 0.7484]",
+            "position = [-0.2, 1.0, 0.7484]",
             "position = [0.0, 0.2]",
             "key 'scene.person.position' must be a list of 3 finite numbers, got [0.0, 0.2]",
         ),

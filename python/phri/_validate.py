@@ -113,6 +113,21 @@ class Reader:
             raise self.fail(key, f"a list of {length} finite numbers", v)
         return np.asarray(v, dtype=float)
 
+    def named_tables(
+        self, key: str, example: str, entry: str, allowed: tuple[str, ...]
+    ) -> list[tuple[str, Reader]]:
+        """The [key.<name>] tables (none if `key` is absent) as (name, Reader) pairs, each one's keys
+        checked against `allowed`; `example` names one in errors, `entry` says what each must be."""
+        table = self.get(key, {})
+        if not isinstance(table, dict):
+            raise self.fail(key, f"a table of object tables, e.g. [{self.prefix}{key}.{example}]", table)
+        readers = []
+        for name, spec in table.items():
+            if not isinstance(spec, dict):
+                raise self.fail(f"{key}.{name}", entry, spec)
+            readers.append((name, Reader(self.source, spec, f"{self.prefix}{key}.{name}.", allowed)))
+        return readers
+
     def table_of(self, key: str, allowed: tuple[str, ...]) -> Reader:
         """The sub-table `key` (empty if absent), its keys checked against `allowed`."""
         v = self.get(key, {})

@@ -172,14 +172,10 @@ def _name(r: Reader, key: str, known: tuple[str, ...], what: str) -> str:
 
 def _scene(r: Reader) -> Scene:
     """The [scene.<name>] tables, each one object in the robot's base frame."""
-    table = r.get("scene", {})
-    if not isinstance(table, dict):
-        raise r.fail("scene", "a table of object tables, e.g. [scene.table]", table)
     objects = []
-    for name, spec in table.items():
-        if not isinstance(spec, dict):
-            raise r.fail(f"scene.{name}", "a table, e.g. [scene.table] with shape, size, position", spec)
-        o = Reader(r.source, spec, f"scene.{name}.", SCENE_OBJECT_KEYS)
+    entry = "a table, e.g. [scene.table] with shape, size, position"
+    for name, o in r.named_tables("scene", "table", entry, SCENE_OBJECT_KEYS):
+        spec = o.table
         shape = _name(o, "shape", tuple(SceneObject.SHAPES), "one of the shapes")
         kwargs: dict[str, Any] = (
             {"kind": _name(o, "kind", tuple(SceneObject.KINDS), "one of")} if "kind" in spec else {}

@@ -105,13 +105,7 @@ def load(name_or_path: str | Path) -> RobotDescription:
 
 def _carried(r: Reader, folder: Path) -> tuple[CarriedObject, ...]:
     """The [carried.<name>] tables; each URDF path is relative to the description."""
-    table = r.get("carried", {})
-    if not isinstance(table, dict):
-        raise r.fail("carried", "a table of object tables, e.g. [carried.cup]", table)
-    objects = []
-    for name, spec in table.items():
-        if not isinstance(spec, dict):
-            raise r.fail(f"carried.{name}", "a table with urdf and frame", spec)
-        c = Reader(r.source, spec, f"carried.{name}.", CARRIED_KEYS)
-        objects.append(CarriedObject(r.source, name, folder / c.string("urdf"), c.string("frame")))
-    return tuple(objects)
+    tables = r.named_tables("carried", "cup", "a table with urdf and frame", CARRIED_KEYS)
+    return tuple(
+        CarriedObject(r.source, name, folder / c.string("urdf"), c.string("frame")) for name, c in tables
+    )

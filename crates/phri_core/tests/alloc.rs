@@ -14,7 +14,7 @@ use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
 use phri_core::reference::{Interpolation, TimedTrajectory};
 use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
-use phri_core::update::{UpdateParams, UpdateRule, WeightUpdate};
+use phri_core::update::UpdateRule;
 use phri_core::wall::{VirtualWall, WallParams};
 
 struct Counting;
@@ -55,15 +55,7 @@ fn learner() -> Learner {
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
     let fs = common::study::study_features(model, frame, &["efficiency", "table"]);
     let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
-    let update = WeightUpdate::new(UpdateParams {
-        step: vec![0.0, 2.0],
-        lower: vec![1.0, 0.0],
-        upper: vec![1.0, 1.0],
-        learned: vec![false, true],
-        ranges: vec![1.0, 1.0],
-        rule: UpdateRule::All,
-    })
-    .unwrap();
+    let update = common::one_feature_update(2.0, 1.0, UpdateRule::All);
     let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
     let deformation = Deformation::new(DeformParams::default()).unwrap();
     let start = common::deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);

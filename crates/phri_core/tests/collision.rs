@@ -15,7 +15,7 @@ use phri_core::learner::{Learner, LearnerParams};
 use phri_core::reference::{Interpolation, TimedTrajectory};
 use phri_core::scene::{ObjectKind, Scene, SceneObject, Shape};
 use phri_core::trajopt::{CollisionParams, TrajectoryOptimizer, TrajoptParams};
-use phri_core::update::{UpdateParams, UpdateRule, WeightUpdate};
+use phri_core::update::UpdateRule;
 use phri_core::wall::{VirtualWall, WallParams};
 use phri_core::RobotModel;
 
@@ -257,15 +257,7 @@ fn a_learner_keeps_its_last_feasible_plan_when_a_replan_is_not() {
     let l7 = model.frame_id("j2s7s300_link_7").unwrap();
     let fs = study_features(model.clone(), l7, &["efficiency", "table"]);
     let opt = TrajectoryOptimizer::new(&fs, WAYPOINTS, planner(&model, &task_scene("table"))).unwrap();
-    let update = WeightUpdate::new(UpdateParams {
-        step: vec![0.0, 1e9],
-        lower: vec![1.0, 0.0],
-        upper: vec![1.0, 1e6],
-        learned: vec![false, true],
-        ranges: vec![1.0, 1.0],
-        rule: UpdateRule::All,
-    })
-    .unwrap();
+    let update = common::one_feature_update(1e9, 1e6, UpdateRule::All);
     let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
     let deformation = Deformation::new(DeformParams::default()).unwrap();
     let (start, goal) = (pose("table", "start"), pose("table", "goal"));

@@ -11,7 +11,7 @@ use phri_core::deform::{DeformParams, Deformation};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
 use phri_core::trajopt::{Clearance, TrajectoryOptimizer, TrajoptParams};
-use phri_core::update::{UpdateParams, UpdateRule, WeightUpdate};
+use phri_core::update::UpdateRule;
 
 const PICK_BASIC: [f64; 7] = [104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8];
 const PICK_SHELF: [f64; 7] = [210.8, 241.0, 209.2, 97.8, 316.8, 91.9, 322.8];
@@ -37,15 +37,7 @@ fn learner_with(
     let fs = study_features(model, l7, &["efficiency", feature]);
     let clearance = vec![Clearance { frame: ee, min_z: 0.0, weight: 1e3 }, Clearance { frame: l7, min_z: -0.04, weight: 1e3 }];
     let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { clearance, ..Default::default() }).unwrap();
-    let update = WeightUpdate::new(UpdateParams {
-        step: vec![0.0, gain],
-        lower: vec![1.0, 0.0],
-        upper: vec![1.0, upper],
-        learned: vec![false, true],
-        ranges: vec![1.0, 1.0],
-        rule,
-    })
-    .unwrap();
+    let update = common::one_feature_update(gain, upper, rule);
     let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
     let deformation = Deformation::new(DeformParams::default()).unwrap();
     Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &deg(start), &deg(goal)).unwrap()
@@ -225,15 +217,7 @@ fn seed_settings_are_checked() {
         let l7 = model.frame_id("j2s7s300_link_7").unwrap();
         let fs = study_features(model, l7, &["efficiency", "table"]);
         let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
-        let update = WeightUpdate::new(UpdateParams {
-            step: vec![0.0, 2.0],
-            lower: vec![1.0, 0.0],
-            upper: vec![1.0, upper],
-            learned: vec![false, true],
-            ranges: vec![1.0, 1.0],
-            rule: UpdateRule::All,
-        })
-        .unwrap();
+        let update = common::one_feature_update(2.0, upper, UpdateRule::All);
         let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
         let deformation = Deformation::new(DeformParams::default()).unwrap();
         Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &deg(PICK_BASIC), &deg(PLACE_LOWER))

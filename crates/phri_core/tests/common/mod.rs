@@ -20,6 +20,20 @@ pub fn jaco2_with_cup() -> RobotModel {
     model.with_attached_urdf("cup", frame, CUP_URDF).unwrap()
 }
 
+/// The update of a task learning one feature beside efficiency (weight 1, fixed): its `gain` and
+/// clip [0, `upper`], with `rule`.
+pub fn one_feature_update(gain: f64, upper: f64, rule: phri_core::update::UpdateRule) -> phri_core::update::WeightUpdate {
+    phri_core::update::WeightUpdate::new(phri_core::update::UpdateParams {
+        step: vec![0.0, gain],
+        lower: vec![1.0, 0.0],
+        upper: vec![1.0, upper],
+        learned: vec![false, true],
+        ranges: vec![1.0, 1.0],
+        rule,
+    })
+    .unwrap()
+}
+
 pub fn deg(q: [f64; 7]) -> Vec<f64> {
     q.iter().map(|d| d.to_radians()).collect()
 }

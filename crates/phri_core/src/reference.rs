@@ -15,6 +15,21 @@
 
 use crate::error::{check_finite, PhriError, Result};
 
+/// The cubic Hermite basis (h00, h10, h01, h11) at s ∈ [0, 1]: the weights of the segment's start,
+/// start tangent, end and end tangent.
+#[inline]
+pub(crate) fn hermite(s: f64) -> [f64; 4] {
+    let (s2, s3) = (s * s, s * s * s);
+    [2.0 * s3 - 3.0 * s2 + 1.0, s3 - 2.0 * s2 + s, -2.0 * s3 + 3.0 * s2, s3 - s2]
+}
+
+/// d/ds of [`hermite`].
+#[inline]
+pub(crate) fn hermite_rate(s: f64) -> [f64; 4] {
+    let s2 = s * s;
+    [6.0 * s2 - 6.0 * s, 3.0 * s2 - 4.0 * s + 1.0, -6.0 * s2 + 6.0 * s, 3.0 * s2 - 2.0 * s]
+}
+
 /// How waypoints are joined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Interpolation {
@@ -396,10 +411,8 @@ impl TimedTrajectory {
             }
             Interpolation::Cubic => {
                 let (ta, tb) = (&self.tangents[i * n..(i + 1) * n], &self.tangents[(i + 1) * n..(i + 2) * n]);
-                let (s2, s3) = (s * s, s * s * s);
-                let (h00, h10, h01, h11) = (2.0 * s3 - 3.0 * s2 + 1.0, s3 - 2.0 * s2 + s, -2.0 * s3 + 3.0 * s2, s3 - s2);
-                let (d00, d10, d01, d11) =
-                    (6.0 * s2 - 6.0 * s, 3.0 * s2 - 4.0 * s + 1.0, -6.0 * s2 + 6.0 * s, 3.0 * s2 - 2.0 * s);
+                let [h00, h10, h01, h11] = hermite(s);
+                let [d00, d10, d01, d11] = hermite_rate(s);
                 let (e00, e10, e01, e11) = (12.0 * s - 6.0, 6.0 * s - 4.0, -12.0 * s + 6.0, 6.0 * s - 2.0);
                 for j in 0..n {
                     q[j] = h00 * a[j] + h10 * ta[j] + h01 * b[j] + h11 * tb[j];

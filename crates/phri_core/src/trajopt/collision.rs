@@ -15,6 +15,7 @@ use super::params::CollisionParams;
 use crate::collision::{ProximityScratch, Violation};
 use crate::data::RobotData;
 use crate::model::RobotModel;
+use crate::reference::{hermite, hermite_rate};
 
 /// Points per segment at which a solved plan is checked against the margins (more than the
 /// penalty's `samples`, so the reported clearance holds between them).
@@ -24,11 +25,15 @@ pub(super) const CHECK_SAMPLES: usize = 16;
 /// (the end tangents are zero).
 #[inline]
 pub(super) fn cubic_weights(u: f64, b: usize, m: usize) -> [f64; 4] {
-    let (u2, u3) = (u * u, u * u * u);
-    let (h00, h10, h01, h11) = (2.0 * u3 - 3.0 * u2 + 1.0, u3 - 2.0 * u2 + u, -2.0 * u3 + 3.0 * u2, u3 - u2);
-    let a = b - 1;
-    // m_a exists only at an interior a, m_b only at an interior b.
-    let (ta, tb) = (if a > 0 { 0.5 * h10 } else { 0.0 }, if b < m - 1 { 0.5 * h11 } else { 0.0 });
+    waypoint_weights(hermite(u), b, m)
+}
+
+/// A Hermite `basis` (the basis or its rate) as weights on (q_{a−1}, q_a, q_b, q_{b+1}) through the
+/// central-difference tangents m_a = ½(q_b − q_{a−1}) and m_b = ½(q_{b+1} − q_a).
+#[inline]
+fn waypoint_weights([h00, h10, h01, h11]: [f64; 4], b: usize, m: usize) -> [f64; 4] {
+    // m_a exists only at an interior a = b − 1, m_b only at an interior b.
+    let (ta, tb) = (if b > 1 { 0.5 * h10 } else { 0.0 }, if b < m - 1 { 0.5 * h11 } else { 0.0 });
     [-ta, h00 - tb, h01 + ta, tb]
 }
 
@@ -161,11 +166,7 @@ pub(super) fn executed_step_excess(max_step: &[f64], traj: &[f64]) -> (f64, f64)
     for b in 1..m {
         for k in 0..=CHECK_SAMPLES {
             let u = k as f64 / CHECK_SAMPLES as f64;
-            // d/du of the Hermite basis.
-            let (d00, d10, d01, d11) =
-                (6.0 * u * u - 6.0 * u, 3.0 * u * u - 4.0 * u + 1.0, 6.0 * u - 6.0 * u * u, 3.0 * u * u - 2.0 * u);
-            let (ta, tb) = (if b > 1 { 0.5 * d10 } else { 0.0 }, if b < m - 1 { 0.5 * d11 } else { 0.0 });
-            let w = [-ta, d00 - tb, d01 + ta, tb];
+            let w = waypoint_weights(hermite_rate(u), b, m);
             for (j, limit) in max_step.iter().enumerate() {
                 let mut v = 0.0;
                 for (row, w) in rows(b, m).into_iter().zip(w) {

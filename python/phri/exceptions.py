@@ -9,12 +9,15 @@ from __future__ import annotations
 
 __all__ = [
     "ConfigError",
+    "ConnectionLostError",
     "InvalidParameterError",
     "MissingExtraError",
     "NonFiniteError",
     "NotConvergedError",
     "PhriError",
     "PlanningError",
+    "RobotFaultError",
+    "SafetyStopError",
     "ShapeError",
     "SimulationError",
     "UnknownNameError",
@@ -67,3 +70,23 @@ class NotConvergedError(PhriError, RuntimeError):
 
 class SimulationError(PhriError, RuntimeError):
     """The simulation produced an invalid state (e.g. NaN); logs written so far stay readable."""
+
+
+class ConnectionLostError(PhriError, ConnectionError):
+    """The robot (or the simulator serving its protocol) stopped answering: nothing at the address
+    within the connect timeout, or no state for longer than the loop tolerates mid-episode."""
+
+
+class RobotFaultError(PhriError, RuntimeError):
+    """The robot reported its own reflex or error state (e.g. a collision reflex, a joint limit
+    hit); the message names the state and the recovery to do (e.g. ``automatic_error_recovery``)."""
+
+
+class SafetyStopError(PhriError, RuntimeError):
+    """phri's safety layer or watchdog stopped the arm (it then held its position): a non-finite
+    value, a limit violated, a lost connection, late ticks or a robot fault. ``event`` holds the
+    reason and the state that caused it, as logged."""
+
+    def __init__(self, message: str, event: object = None) -> None:
+        super().__init__(message)
+        self.event = event

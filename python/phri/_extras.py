@@ -29,10 +29,15 @@ EXTRA_OF: dict[str, str] = {
     "tqdm": "study",
     "pyarrow": "parquet",
     "ray": "ray",
+    "pylibfranka": "franka",
 }
 
 #: Extras that install other extras: ``phri[study]`` brings ``phri[sim]`` too.
-INCLUDES: dict[str, tuple[str, ...]] = {"study": ("sim",), "all": ("study", "parquet", "ray")}
+INCLUDES: dict[str, tuple[str, ...]] = {
+    "study": ("sim",),
+    "franka-sim": ("franka",),
+    "all": ("study", "parquet", "ray", "franka-sim"),
+}
 
 #: The optional modules each part of phri needs, checked before it starts (:func:`check_part`).
 NEEDS: dict[str, tuple[str, ...]] = {

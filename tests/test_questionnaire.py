@@ -333,3 +333,24 @@ def test_append_after_a_file_without_final_newline(tmp_path: Path) -> None:
     assert q.read_responses(path)[["participant", "strategy", "q1"]].values.tolist() == [
         [1, "impedance", 1], [1, "learning", 3],
     ]  # fmt: skip
+
+
+def _import_one(args: tuple[str, str]) -> int:
+    return q.import_responses(args[0], args[1])
+
+
+def test_concurrent_imports_lose_no_answer(tmp_path: Path) -> None:
+    """Issue 16 #1: imports in 12 processes at once, each adding its own participant's answers, all
+    land (each read-check-write of the target holds its lock) and the header survives."""
+    import multiprocessing
+
+    sources = []
+    for p in range(1, 13):
+        row = f"{p},learning," + ",".join(str(1 + (p + i) % 7) for i in range(10))
+        sources.append((str(write_csv(tmp_path / f"in{p}.csv", [row])), str(tmp_path / "answers.csv")))
+    with multiprocessing.get_context("fork").Pool(6) as pool:
+        added = pool.map(_import_one, sources)
+    assert added == [1] * 12
+    table = q.read_responses(tmp_path / "answers.csv")
+    assert sorted(table["participant"]) == list(range(1, 13))
+    assert (tmp_path / "answers.csv").read_text().startswith(HEADER + "\n")

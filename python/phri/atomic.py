@@ -11,9 +11,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["PARTIAL_SUFFIX", "partial_path", "write_atomic"]
+__all__ = ["LOCK_SUFFIX", "PARTIAL_SUFFIX", "exclusive", "partial_path", "write_atomic"]
+
+#: Suffix of the lock file beside a file that several processes update (:func:`exclusive`).
+LOCK_SUFFIX = ".lock"
 
 #: Suffix of the temporary file a write goes through.
 PARTIAL_SUFFIX = ".partial"
@@ -72,3 +77,33 @@ def _link_new(tmp: Path, path: Path) -> None:
         os.replace(tmp, path)
         return
     tmp.unlink()
+
+
+@contextlib.contextmanager
+def exclusive(path: str | Path, *, timeout: float = 30.0) -> Iterator[None]:
+    """Holds an exclusive advisory lock for updating `path` (read, check, rewrite) while the block
+    runs, so that concurrent updates of one file queue instead of losing each other's rows. The lock
+    is on ``NAME.lock`` beside it (the file itself is replaced by each atomic write, so it cannot
+    carry the lock); waits at most `timeout` [s], then raises :class:`TimeoutError`."""
+    path = Path(path)
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: no advisory lock
+        yield
+        return
+    fd = os.open(path.with_name(path.name + LOCK_SUFFIX), os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(
+                        f"{path}: another process has been updating it for more than {timeout:g} s"
+                    ) from None
+                time.sleep(0.01)
+        yield
+    finally:
+        os.close(fd)  # closing the descriptor releases the lock

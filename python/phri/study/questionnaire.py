@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from phri._extras import require
-from phri.atomic import write_atomic
+from phri.atomic import exclusive, write_atomic
 from phri.study import markdown
 from phri.study.errors import QuestionnaireError
 
@@ -150,12 +150,15 @@ def append_response(
     _validate_row(row, f"{path}: new row")
     if study is not None:
         check_in_study(participant, strategy, study, f"{path}: new row")
-    existing = read_responses(path) if path.exists() else None
-    if existing is not None:
-        clash = (existing["participant"] == participant) & (existing["strategy"] == strategy)
-        if clash.any():
-            raise QuestionnaireError(f"{path}: participant {participant} already answered for '{strategy}'")
-    _append_rows(path, [row])
+    with exclusive(path):  # a concurrent import or answer waits: no row is lost
+        existing = read_responses(path) if path.exists() else None
+        if existing is not None:
+            clash = (existing["participant"] == participant) & (existing["strategy"] == strategy)
+            if clash.any():
+                raise QuestionnaireError(
+                    f"{path}: participant {participant} already answered for '{strategy}'"
+                )
+        _append_rows(path, [row])
 
 
 def _append_rows(path: Path, rows: Sequence[Mapping[str, object]]) -> None:
@@ -178,6 +181,12 @@ def import_responses(source: str | Path, target: str | Path, *, study: StudyConf
     is all or nothing."""
     incoming = read_responses(source)
     target = Path(target)
+    with exclusive(target):  # a concurrent import or answer waits: no row is lost
+        return _import_rows(source, incoming, target, study)
+
+
+def _import_rows(source: str | Path, incoming: pd.DataFrame, target: Path, study: StudyConfig | None) -> int:
+    """import_responses with the target locked."""
     existing = read_responses(target) if target.exists() else pd.DataFrame(columns=list(COLUMNS))
     known = {(int(r["participant"]), str(r["strategy"])): r for r in existing.to_dict("records")}
     new = []

@@ -247,9 +247,11 @@ def test_interrupted_study_loses_nothing_and_resumes(reference: Path, tmp_path: 
     kept = load_results(run_dir)
     assert len(kept) == 3
     assert len(pd.read_parquet(run_dir / "results.parquet")) == 3
-    # A kill in the middle of writing a row, and a log whose row was never written.
-    with open(run_dir / "results.csv", "a") as f:
-        f.write("2,learning,1,hum")
+    # A kill in the middle of writing a row, inside a multi-byte character (issue 16 #8: a task
+    # named "café"), and a log whose row was never written.
+    with open(run_dir / "results.csv", "ab") as f:
+        f.write(b"2,learning,1,caf" + "é".encode()[:1])
+    assert len(load_results(run_dir)) == 3
     pending = [
         s
         for s in schedule(TINY)
@@ -330,6 +332,47 @@ def test_one_writer_at_a_time(tmp_path: Path) -> None:
             ResultStore.open(tmp_path / "study", TINY)
     with ResultStore.open(tmp_path / "study", TINY) as store:
         assert len(store.pending()) == 16
+
+
+def test_the_folder_is_locked_before_its_manifest_is_read(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 16 #2: a second writer that read study.json before taking the lock could take a study
+    finished meanwhile for a new one and reset it; the lock now comes first."""
+    import fcntl
+    import os
+
+    from phri.study import results
+
+    held: list[bool] = []
+    read = results.read_manifest
+
+    def probing(run_dir: Path):  # noqa: ANN202
+        fd = os.open(run_dir, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            held.append(False)
+        except BlockingIOError:
+            held.append(True)
+        finally:
+            os.close(fd)
+        return read(run_dir)
+
+    monkeypatch.setattr(results, "read_manifest", probing)
+    with ResultStore.open(tmp_path / "study", TINY):
+        pass
+    with ResultStore.open(tmp_path / "study", TINY):
+        pass
+    assert held == [True, True]
+
+    # A refused open of a new folder leaves nothing behind.
+    def unreadable(self: StudyConfig) -> None:
+        raise StudyFileError("a task file vanished")
+
+    monkeypatch.setattr(StudyConfig, "load_tasks", unreadable)
+    with pytest.raises(StudyFileError, match="vanished"):
+        ResultStore.open(tmp_path / "new", TINY)
+    assert not (tmp_path / "new").exists()
 
 
 def test_bad_execution_arguments(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ table of an uninterrupted run.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -224,6 +225,25 @@ class ResultStore:
         run_dir = Path(run_dir)
         if run_dir.exists() and not run_dir.is_dir():
             raise StudyFileError(f"{run_dir}: exists and is not a folder")
+        created = not run_dir.exists()
+        run_dir.mkdir(parents=True, exist_ok=True)
+        # The lock first, then the manifest: a second writer that read the folder before the first
+        # one finished it would otherwise take it for new (issue 16 #2).
+        lock_fd = _lock(run_dir)
+        try:
+            return cls._open_locked(run_dir, config, allow_version_change, lock_fd)
+        except BaseException:
+            _unlock(lock_fd)
+            if created:
+                with contextlib.suppress(OSError):
+                    run_dir.rmdir()  # only if still empty: nothing was changed
+            raise
+
+    @classmethod
+    def _open_locked(
+        cls, run_dir: Path, config: StudyConfig | None, allow_version_change: bool, lock_fd: int | None
+    ) -> ResultStore:
+        """:meth:`open` once the folder's lock is held."""
         existing = read_manifest(run_dir)
         if existing is None:
             leftovers = [
@@ -254,35 +274,14 @@ class ResultStore:
                 )
             _check_version(run_dir, manifest, allow_version_change)
         config.load_tasks()  # every task file readable before anything is written
-        run_dir.mkdir(parents=True, exist_ok=True)
         store = cls(run_dir, config, schedule(config), [])
-        store._lock()
-        try:
-            if existing is None:
-                store._create()
-            else:
-                store._note_version(existing[1])
-            store._load()
-        except BaseException:
-            store.close()
-            raise
+        if existing is None:
+            store._create()
+        else:
+            store._note_version(existing[1])
+        store._load()
+        store._lock_fd = lock_fd  # the store releases it from now on
         return store
-
-    def _lock(self) -> None:
-        """An advisory lock on the folder itself (no lock file is left behind)."""
-        try:
-            import fcntl
-        except ImportError:  # pragma: no cover - Windows: no advisory lock
-            return
-        self._lock_fd = os.open(self.run_dir, os.O_RDONLY)
-        try:
-            fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(self._lock_fd)
-            self._lock_fd = None
-            raise StudyLockedError(
-                f"{self.run_dir}: another process is running a study into this folder"
-            ) from None
 
     def _create(self) -> None:
         from phri import __version__
@@ -326,7 +325,7 @@ class ResultStore:
             raise StudyFileError(
                 f"{path}: missing although {MANIFEST} is there; the folder is damaged (nothing was changed)"
             )
-        text = path.read_text(encoding="utf-8")
+        text, torn = _read_complete(path)
         rows = _parse_rows(path, text)
         for n, row in enumerate(rows, start=2):
             key = tuple(row[k] for k in KEY)
@@ -340,10 +339,10 @@ class ResultStore:
                     f"{path}: line {n}: episode {dict(zip(KEY, key, strict=True))} is recorded twice"
                 )
             self.rows[key] = row
-        if not text.endswith("\n"):
+        if torn:
             # A row torn by a kill: it was never complete, so its episode is run again.
             with open(path, "r+b") as f:
-                f.truncate(len(text[: text.rfind("\n") + 1].encode("utf-8")))
+                f.truncate(len(text.encode("utf-8")))
         # Logs of episodes that never got their row (killed in between) are redone identically.
         logs = self.run_dir / LOGS
         logs.mkdir(exist_ok=True)
@@ -398,15 +397,46 @@ class ResultStore:
                 write_atomic(self.run_dir / RESULTS_CSV, text.encode("utf-8"))
 
     def close(self) -> None:
-        if self._lock_fd is not None:
-            os.close(self._lock_fd)  # closing the descriptor releases the lock
-            self._lock_fd = None
+        _unlock(self._lock_fd)
+        self._lock_fd = None
 
     def __enter__(self) -> ResultStore:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _read_complete(path: Path) -> tuple[str, bool]:
+    """The complete lines of results.csv `path` as text, and whether a torn last row (a kill during
+    its write, which may end inside a multi-byte character) was left out."""
+    data = path.read_bytes()
+    end = data.rfind(b"\n") + 1
+    try:
+        return data[:end].decode("utf-8"), end < len(data)
+    except UnicodeDecodeError as e:
+        raise StudyFileError(f"{path}: byte {e.start} is not UTF-8; the file is damaged") from None
+
+
+def _lock(run_dir: Path) -> int | None:
+    """An advisory lock on the folder `run_dir` itself (no lock file is left behind): its
+    descriptor, or None where there are no advisory locks. Another holder is StudyLockedError."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: no advisory lock
+        return None
+    fd = os.open(run_dir, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise StudyLockedError(f"{run_dir}: another process is running a study into this folder") from None
+    return fd
+
+
+def _unlock(fd: int | None) -> None:
+    if fd is not None:
+        os.close(fd)  # closing the descriptor releases the lock
 
 
 def _format_header() -> str:
@@ -432,7 +462,7 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
     path = run_dir / RESULTS_CSV
     if not path.exists():
         raise StudyFileError(f"{path}: missing although {MANIFEST} is there")
-    rows = _parse_rows(path, path.read_text(encoding="utf-8"))
+    rows = _parse_rows(path, _read_complete(path)[0])
     order = {s.key: s.index for s in schedule(config)}
     rows.sort(key=lambda r: order.get(tuple(r[k] for k in KEY), len(order)))  # type: ignore[arg-type]
     return _frame(rows)

@@ -296,3 +296,13 @@ def test_the_library_does_not_print() -> None:
         )
     )
     assert set(printing) <= {"cli.py", "study/cli.py", "demo.py"}, printing
+
+
+def test_hostile_command_lines_are_clear_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 16 #11: an empty task list and a negative demo seed are errors naming the argument,
+    before any folder is made."""
+    assert cli(["study", str(tmp_path / "s"), "--tasks", ""]) == 2
+    assert "--tasks: must name at least one task" in capsys.readouterr().err
+    assert cli(["demo", "--seed", "-1", "--out", str(tmp_path / "demo")]) == 2
+    assert "seed must be an integer >= 0, got -1" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists() and not (tmp_path / "demo").exists()

@@ -87,6 +87,8 @@ def run_demo(
     Each episode's row is appended to ``summary.csv`` as soon as it finishes, so an interrupted demo
     keeps what it did."""
     began = time.perf_counter()
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
     check_out(Path(out))
     folder = fresh_folder(Path(out))
     (folder / "logs").mkdir()

@@ -126,6 +126,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _study_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    from phri.study.errors import StudyConfigError
     from phri.study.protocol import StudyConfig
 
     given = {k: getattr(args, k) for k in _STUDY_KEYS if getattr(args, k) is not None}
@@ -134,6 +135,8 @@ def _study_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     if args.config is None and not given:
         return None
     base = StudyConfig.from_toml(args.config).to_dict() if args.config is not None else {}
+    if "tasks" in given and not given["tasks"]:
+        raise StudyConfigError("--tasks: must name at least one task (comma-separated), got none")
     if "tasks" in given and "familiarization" not in given and "familiarization" not in base:
         given["familiarization"] = given["tasks"][0] if given["tasks"][0] == "human" else None
     return StudyConfig.from_dict({**base, **given}, str(args.config) if args.config is not None else "study")

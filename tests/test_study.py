@@ -1130,3 +1130,14 @@ def test_a_task_files_digest_covers_its_scene_and_features(tmp_path: Path, old: 
     task_file.write_text(text.replace(old, new, 1))
     after = config.task_digests()
     assert after["human"] == before["human"] and after["laptop"] != before["laptop"]
+
+
+def test_ray_address_where_nothing_answers_is_a_clear_error_at_once() -> None:
+    """Issue 16 #12: Ray retries an unreachable address for ever; phri checks it first."""
+    from phri.exceptions import ConnectionLostError
+    from phri.study.parallel import RayBackend
+
+    began = time.monotonic()
+    with pytest.raises(ConnectionLostError, match=r"address '127.0.0.1:1': no Ray cluster answers"):
+        RayBackend(TINY, workers=1, address="127.0.0.1:1")
+    assert time.monotonic() - began < 30

@@ -73,8 +73,9 @@ class SimulationError(PhriError, RuntimeError):
 
 
 class ConnectionLostError(PhriError, ConnectionError):
-    """The robot (or the simulator serving its protocol) stopped answering: nothing at the address
-    within the connect timeout, or no state for longer than the loop tolerates mid-episode."""
+    """A server phri talks to does not answer: the robot (or the simulator serving its protocol), or
+    a Ray cluster. Nothing accepted the connection within its timeout, or the robot sent no state for
+    longer than the loop tolerates mid-episode."""
 
 
 class RobotFaultError(PhriError, RuntimeError):

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import socket
 import threading
 import time
 from collections import deque
@@ -30,7 +31,7 @@ from typing import Any, Protocol
 
 from phri._extras import NEEDS, check, require
 from phri.config import Task
-from phri.exceptions import InvalidParameterError
+from phri.exceptions import ConnectionLostError, InvalidParameterError
 from phri.study.protocol import EpisodeSpec, StudyConfig
 from phri.study.runner import EpisodeRunner, Outcome
 
@@ -270,11 +271,12 @@ class RayBackend:
         tasks = driver_tasks(config, tasks)  # before Ray starts: a bad task file fails fast
         self._started = False
         if not ray.is_initialized():
-            kwargs: dict[str, Any] = (
-                {"address": address}
-                if address
-                else {"num_cpus": default_workers() if workers is None else workers}
-            )
+            kwargs: dict[str, Any]
+            if address:
+                _check_answers(address)
+                kwargs = {"address": address}
+            else:
+                kwargs = {"num_cpus": default_workers() if workers is None else workers}
             ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
             self._started = True
         self.workers = cluster_cpus(ray) if workers is None else workers
@@ -312,6 +314,25 @@ class RayBackend:
         if self._started:
             self.ray.shutdown()
             self._started = False
+
+
+#: How long a Ray cluster's address may take to accept a connection [s].
+RAY_CONNECT_TIMEOUT = 10.0
+
+
+def _check_answers(address: str) -> None:
+    """Raises ConnectionLostError naming `address` unless something accepts a TCP connection there
+    within RAY_CONNECT_TIMEOUT (Ray itself retries an unreachable address for ever). "auto" and
+    addresses without a port are left to Ray."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "://" in address:
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_CONNECT_TIMEOUT).close()
+    except OSError as e:
+        raise ConnectionLostError(
+            f"address {address!r}: no Ray cluster answers there within {RAY_CONNECT_TIMEOUT:g} s ({e})"
+        ) from None
 
 
 def cluster_cpus(ray: Any) -> int:

@@ -980,6 +980,38 @@ def test_report_never_overwrites_and_fails_cleanly(
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["s", "mine", "mine-2", "empty", "bad.csv"])
 
 
+def test_report_survives_damaged_logs_and_refuses_foreign_rows(reference: Path, tmp_path: Path) -> None:
+    """Issue 16 #7, #17, #24: a damaged log costs only its figure (named), a missing one is a
+    warning, a killed report's staging folder is cleaned up, and duplicated or foreign rows are
+    refused as `phri study` refuses them, never counted."""
+    run_dir = copy_study(reference, tmp_path / "s")
+    table = load_results(run_dir)
+    sample = table[(table["participant"] == 1) & (table["task"] == "laptop")]
+    (run_dir / sample["log"].iloc[0]).write_bytes(b"PK\x03\x04 truncated")
+    gone = table[table["task"] == "human"]["log"].iloc[0]
+    (run_dir / gone).unlink()
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    stale = run_dir / f".report.partial-{int(dead.stdout)}-abcd1234"
+    stale.mkdir()
+    (stale / "report.md").write_text("half")
+    md = write_report(run_dir).read_text()
+    assert "is damaged" in md and str(sample["log"].iloc[0]) in md
+    assert "1 of the 16 recorded episodes have no log" in md and gone in md
+    assert "## Statistics" in md or "ANOVA" in md
+    assert not stale.exists()
+    # A duplicated row and a foreign one: the report refuses them as a resume would.
+    csv_path = run_dir / "results.csv"
+    lines = csv_path.read_text().splitlines(keepends=True)
+    csv_path.write_text("".join([*lines, lines[1]]))
+    with pytest.raises(StudyFileError, match=rf"line {len(lines) + 1}: episode .* is recorded twice"):
+        write_report(run_dir)
+    csv_path.write_text("".join([*lines, lines[1].replace("1,", "9,", 1)]))
+    with pytest.raises(StudyFileError, match=rf"line {len(lines) + 1}: an episode .* not in this study"):
+        write_report(run_dir)
+
+
 def test_report_sample_must_be_in_the_study(
     reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -152,11 +152,18 @@ def plot_cost(
     return _save(fig, path)
 
 
+def read_log(log: str | Path, *keys: str) -> list[np.ndarray]:
+    """The arrays `keys` of the episode log `log` (.npz). The file is opened here, so a damaged one
+    (which np.load would leave open) is closed whatever it raises."""
+    with open(log, "rb") as f, np.load(f) as data:
+        return [np.asarray(data[k]) for k in keys]
+
+
 def log_rate(log: str | Path) -> float:
     """The rate at which an episode log holds its samples [Hz], from its times `t` (NaN with fewer
     than two samples)."""
-    with np.load(log) as data:
-        t = np.asarray(data["t"], dtype=float)
+    (t,) = read_log(log, "t")
+    t = t.astype(float)
     return float(1.0 / np.median(np.diff(t))) if t.size > 1 else float("nan")
 
 
@@ -166,8 +173,7 @@ def read_paths(log: str | Path, frame: str | None = None) -> dict[str, np.ndarra
     interpolation of its waypoints), each (N, 3) [m]."""
     from phri._phri import Robot, TimedTrajectory
 
-    with np.load(log) as data:
-        t, q, desired = data["t"], data["q"], data["desired"]
+    t, q, desired = read_log(log, "t", "q", "desired")
     robot = Robot.jaco2()
     cup = frame or robot.feature_frame
     if cup is None:

@@ -17,6 +17,7 @@ import logging
 import os
 import secrets
 import shutil
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -207,6 +208,21 @@ def _place(staging: Path, target: Path) -> Path:
         return candidate
 
 
+def _remove_stale_staging(target: Path) -> None:
+    """Removes the staging folders of reports into `target` whose process is gone (killed mid-way,
+    issue 16 #24); a running report's folder is left alone."""
+    for folder in target.parent.glob(f".{target.name}.partial-*-*"):
+        pid = folder.name.rsplit("-", 2)[-2]
+        if not pid.isdigit():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except OSError:
+            pass  # another user's process: alive
+
+
 def write_report(
     run_dir: str | Path,
     out: str | Path | None = None,
@@ -236,6 +252,7 @@ def write_report(
     raw = load_results(run_dir)
     target = Path(out) if out is not None else run_dir / "report"
     target.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_staging(target)
     # Not tempfile.mkdtemp: its folder is private (0700); this one gets the usual permissions.
     staging = target.parent / f".{target.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
     staging.mkdir()
@@ -337,6 +354,21 @@ def _design_warnings(stats: _Statistics, config: StudyConfig) -> list[str]:
     return out
 
 
+def _log_warnings(run_dir: Path, raw: pd.DataFrame) -> list[str]:
+    """Recorded episodes whose log is missing (issue 16 #24): the table still has their row."""
+    named = [str(log) for log in raw["log"] if isinstance(log, str) and log]
+    missing = [log for log in named if not (run_dir / log).is_file()]
+    if not missing:
+        return []
+    shown = ", ".join(f"`{m}`" for m in missing[:5]) + (
+        f" and {len(missing) - 5} more" if len(missing) > 5 else ""
+    )
+    return [
+        f"{len(missing)} of the {len(named)} recorded episodes have no log in the study folder ({shown}): "
+        "their rows are analysed, but no figure can show them."
+    ]
+
+
 def _warnings_md(warnings: list[str]) -> list[str]:
     """The report's warnings section, if there are warnings."""
     if not warnings:
@@ -420,6 +452,11 @@ def _statistics_md(stats: _Statistics, config: StudyConfig) -> list[str]:
     ]
 
 
+#: What reading a damaged .npz log raises: truncated or empty (BadZipFile, EOFError, OSError), wrong
+#: keys (KeyError), wrong shapes or NaN (ValueError, IndexError).
+DAMAGED_LOG = (zipfile.BadZipFile, EOFError, OSError, KeyError, ValueError, IndexError)
+
+
 def _figures(
     out: Path,
     run_dir: Path,
@@ -460,12 +497,21 @@ def _figures(
         return lines + [f"_No episode logs for {who} with every strategy{where} yet: no path figure._", ""]
     p, t, logs = sample
     shown = config.load_tasks()[t]
-    fig_paths = figures.plot_paths(
-        logs, out / "fig5_paths.png", scene=shown.scene, task=t, keep_out=shown.keep_out_circle(t),
-        frame=shown.feature_frame,
-        title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
-    )  # fmt: skip
-    rate = figures.log_rate(next(iter(logs.values())))
+    try:
+        fig_paths = figures.plot_paths(
+            logs, out / "fig5_paths.png", scene=shown.scene, task=t, keep_out=shown.keep_out_circle(t),
+            frame=shown.feature_frame,
+            title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
+        )  # fmt: skip
+        rate = figures.log_rate(next(iter(logs.values())))
+    except DAMAGED_LOG as e:
+        # One damaged log (issue 16 #7): the rest of the report stands, naming the file.
+        named = ", ".join(f"`{log.relative_to(run_dir)}`" for log in logs.values())
+        logger.warning("%s: an episode log of %s cannot be read: %s", run_dir, named, e)
+        return lines + [
+            f"_An episode log among {named} is damaged ({type(e).__name__}: {e}): no path figure._",
+            "",
+        ]
     return lines + [
         f"![Sample participant's paths]({fig_paths.name})",
         "",
@@ -516,7 +562,7 @@ def _write(
     LaTeX, the figures as PNG and PDF, and report.md (each file atomically)."""
     stats = _statistics(raw, config)
     tables = _write_tables(out, stats)
-    warnings = _design_warnings(stats, config)
+    warnings = [*_design_warnings(stats, config), *_log_warnings(run_dir, raw)]
     for w in warnings:
         logger.warning("%s: %s", run_dir, w)
     qpath = Path(questionnaire) if questionnaire is not None else run_dir / QUESTIONNAIRE_CSV

@@ -24,7 +24,7 @@ import json
 import math
 import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -326,19 +326,7 @@ class ResultStore:
                 f"{path}: missing although {MANIFEST} is there; the folder is damaged (nothing was changed)"
             )
         text, torn = _read_complete(path)
-        rows = _parse_rows(path, text)
-        for n, row in enumerate(rows, start=2):
-            key = tuple(row[k] for k in KEY)
-            spec = self._index.get(key)  # type: ignore[arg-type]
-            if spec is None or spec.seed != row["seed"] or spec.order != row["order"]:
-                raise StudyFileError(
-                    f"{path}: line {n}: an episode {dict(zip(KEY, key, strict=True))} not in this study"
-                )
-            if key in self.rows:
-                raise StudyFileError(
-                    f"{path}: line {n}: episode {dict(zip(KEY, key, strict=True))} is recorded twice"
-                )
-            self.rows[key] = row
+        self.rows = _study_rows(path, _parse_rows(path, text), self._index)
         if torn:
             # A row torn by a kill: it was never complete, so its episode is run again.
             with open(path, "r+b") as f:
@@ -407,6 +395,27 @@ class ResultStore:
         self.close()
 
 
+def _study_rows(
+    path: Path, rows: list[dict[str, Any]], index: Mapping[tuple[Any, ...], EpisodeSpec]
+) -> dict[tuple[Any, ...], dict[str, Any]]:
+    """`rows` of results.csv `path` by episode key, each checked to be an episode of the study
+    (`index`: its episodes by key) and recorded once; else a StudyFileError naming the line."""
+    out: dict[tuple[Any, ...], dict[str, Any]] = {}
+    for n, row in enumerate(rows, start=2):
+        key = tuple(row[k] for k in KEY)
+        spec = index.get(key)
+        if spec is None or spec.seed != row["seed"] or spec.order != row["order"]:
+            raise StudyFileError(
+                f"{path}: line {n}: an episode {dict(zip(KEY, key, strict=True))} not in this study"
+            )
+        if key in out:
+            raise StudyFileError(
+                f"{path}: line {n}: episode {dict(zip(KEY, key, strict=True))} is recorded twice"
+            )
+        out[key] = row
+    return out
+
+
 def _read_complete(path: Path) -> tuple[str, bool]:
     """The complete lines of results.csv `path` as text, and whether a torn last row (a kill during
     its write, which may end inside a multi-byte character) was left out."""
@@ -462,7 +471,11 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
     path = run_dir / RESULTS_CSV
     if not path.exists():
         raise StudyFileError(f"{path}: missing although {MANIFEST} is there")
-    rows = _parse_rows(path, _read_complete(path)[0])
-    order = {s.key: s.index for s in schedule(config)}
+    specs = schedule(config)
+    # The rows `phri study` would accept, or its error: duplicated or foreign rows are never counted.
+    rows = list(
+        _study_rows(path, _parse_rows(path, _read_complete(path)[0]), {s.key: s for s in specs}).values()
+    )
+    order = {s.key: s.index for s in specs}
     rows.sort(key=lambda r: order.get(tuple(r[k] for k in KEY), len(order)))  # type: ignore[arg-type]
     return _frame(rows)

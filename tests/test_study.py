@@ -127,7 +127,10 @@ def test_seeds_depend_on_what_not_when() -> None:
         ({"participants": 0}, "participants"),
         ({"participants": -3}, "participants"),
         ({"participants": 2.5}, "participants"),
+        ({"participants": 10**6}, r"participants must be an integer in \[1, 10000\]"),
+        ({"participants": 10**400}, "participants"),
         ({"attempts": 0}, "attempts"),
+        ({"attempts": 101}, "attempts"),
         ({"seed": -1}, "seed"),
         ({"strategies": ("learning", "telepathy")}, "strategies"),
         ({"tasks": ()}, "tasks"),
@@ -145,6 +148,18 @@ def test_bad_study_parameters_are_clear_errors(kwargs: dict, key: str) -> None:
     with pytest.raises(StudyConfigError, match=key) as info:
         StudyConfig(**kwargs)
     assert isinstance(info.value, ConfigError | InvalidParameterError)
+
+
+def test_an_edited_study_json_beyond_the_limits_is_refused_at_once(reference: Path, tmp_path: Path) -> None:
+    """Issue 16 #13: study.json edited to 10⁷ participants is refused before any scheduling."""
+    run_dir = copy_study(reference, tmp_path / "s")
+    manifest = json.loads((run_dir / "study.json").read_text())
+    manifest["config"]["participants"] = 10**7
+    (run_dir / "study.json").write_text(json.dumps(manifest))
+    began = time.monotonic()
+    with pytest.raises(PhriError, match="participants"):
+        run_study(run_dir, progress=False)
+    assert time.monotonic() - began < 10
 
 
 def test_unknown_task_is_a_clear_error(tmp_path: Path) -> None:

@@ -37,6 +37,8 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 __all__ = [
+    "MAX_ATTEMPTS",
+    "MAX_PARTICIPANTS",
     "EpisodeSpec",
     "StudyConfig",
     "episode_seed",
@@ -47,6 +49,13 @@ __all__ = [
 
 _PARTICIPANT_KEY = 0
 _EPISODE_KEY = 1
+
+
+#: Most participants and attempts a study may have: beyond them, scheduling alone would take
+#: minutes before anything happened. 10,000 participants × 2 attempts × 4 tasks ×
+#: 2 strategies is 160,000 episodes, about 17 hours on 2 cores; run bigger designs as several studies.
+MAX_PARTICIPANTS = 10_000
+MAX_ATTEMPTS = 100
 
 
 @dataclass(frozen=True)
@@ -83,10 +92,10 @@ class StudyConfig:
             return must_be(f"study: {key}", expected, got, error=StudyConfigError)
 
         integer = is_integer
-        if not integer(self.participants) or self.participants < 1:
-            raise fail("participants", "an integer >= 1", self.participants)
-        if not integer(self.attempts) or self.attempts < 1:
-            raise fail("attempts", "an integer >= 1", self.attempts)
+        if not integer(self.participants) or not 1 <= self.participants <= MAX_PARTICIPANTS:
+            raise fail("participants", f"an integer in [1, {MAX_PARTICIPANTS}]", self.participants)
+        if not integer(self.attempts) or not 1 <= self.attempts <= MAX_ATTEMPTS:
+            raise fail("attempts", f"an integer in [1, {MAX_ATTEMPTS}]", self.attempts)
         if not integer(self.seed) or self.seed < 0:
             raise fail("seed", "an integer >= 0", self.seed)
         object.__setattr__(self, "participants", int(self.participants))

@@ -209,8 +209,8 @@ def _place(staging: Path, target: Path) -> Path:
 
 
 def _remove_stale_staging(target: Path) -> None:
-    """Removes the staging folders of reports into `target` whose process is gone (killed mid-way,
-    issue 16 #24); a running report's folder is left alone."""
+    """Removes the staging folders of reports into `target` whose process is gone (killed mid-way);
+    a running report's folder is left alone."""
     for folder in target.parent.glob(f".{target.name}.partial-*-*"):
         pid = folder.name.rsplit("-", 2)[-2]
         if not pid.isdigit():
@@ -355,7 +355,7 @@ def _design_warnings(stats: _Statistics, config: StudyConfig) -> list[str]:
 
 
 def _log_warnings(run_dir: Path, raw: pd.DataFrame) -> list[str]:
-    """Recorded episodes whose log is missing (issue 16 #24): the table still has their row."""
+    """Recorded episodes whose log is missing: the table still has their row."""
     named = [str(log) for log in raw["log"] if isinstance(log, str) and log]
     missing = [log for log in named if not (run_dir / log).is_file()]
     if not missing:
@@ -505,7 +505,7 @@ def _figures(
         )  # fmt: skip
         rate = figures.log_rate(next(iter(logs.values())))
     except DAMAGED_LOG as e:
-        # One damaged log (issue 16 #7): the rest of the report stands, naming the file.
+        # One damaged log: the rest of the report stands, naming the file.
         named = ", ".join(f"`{log.relative_to(run_dir)}`" for log in logs.values())
         logger.warning("%s: an episode log of %s cannot be read: %s", run_dir, named, e)
         return lines + [

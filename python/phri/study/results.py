@@ -228,7 +228,7 @@ class ResultStore:
         created = not run_dir.exists()
         run_dir.mkdir(parents=True, exist_ok=True)
         # The lock first, then the manifest: a second writer that read the folder before the first
-        # one finished it would otherwise take it for new (issue 16 #2).
+        # one finished it would otherwise take it for new.
         lock_fd = _lock(run_dir)
         try:
             return cls._open_locked(run_dir, config, allow_version_change, lock_fd)

@@ -442,3 +442,42 @@ def test_a_scene_that_is_not_a_table_is_an_error(tmp_path) -> None:
     message = f"{path}: key 'scene' must be a table of object tables, e.g. [scene.table], got 3"
     with pytest.raises(ConfigError, match=re.escape(message)):
         phri.load_task(path)
+
+
+@pytest.mark.parametrize("name", ["../x", "a/b", "nul\\u0000", "line\\nbreak", ".hidden", "x" * 300, ""])
+def test_task_names_that_cannot_name_files_are_refused(tmp_path, name) -> None:
+    """Issue 16 #9: the task's name goes into file names."""
+    with pytest.raises(ConfigError, match=r"variant.toml: name must be 1-64 letters, digits and _ - \."):
+        phri.load_task(_variant(tmp_path, 'name = "table"', f'name = "{name}"'))
+
+
+def test_unicode_task_names_are_accepted(tmp_path) -> None:
+    assert phri.load_task(_variant(tmp_path, 'name = "table"', 'name = "café-2"')).name == "café-2"
+
+
+def test_hostile_task_files_are_config_errors(tmp_path) -> None:
+    """Issue 16 #9: huge integers, deep nesting, a byte-order mark, a folder, a FIFO and a symbolic
+    link loop each get a ConfigError saying what is wrong."""
+    import os
+
+    shipped = importlib.resources.files("phri").joinpath("tasks", "table.toml").read_text()
+    cases = {
+        "digits.toml": ("x = " + "9" * 5000 + "\n", "not a task file phri can read"),
+        "nested.toml": ("x = " + "[" * 100_000 + "]" * 100_000 + "\n", "not"),
+    }
+    for name, (text, message) in cases.items():
+        (tmp_path / name).write_text(text)
+        with pytest.raises(ConfigError, match=message):
+            phri.load_task(tmp_path / name)
+    bom = tmp_path / "bom.toml"
+    bom.write_bytes(b"\xef\xbb\xbf" + shipped.encode())
+    assert phri.load_task(bom).name == "table"
+    (tmp_path / "folder.toml").mkdir()
+    with pytest.raises(ConfigError, match="is a folder, not a task file"):
+        phri.load_task(tmp_path / "folder.toml")
+    os.mkfifo(tmp_path / "fifo.toml")
+    with pytest.raises(ConfigError, match="is not a regular file"):
+        phri.load_task(tmp_path / "fifo.toml")
+    (tmp_path / "loop.toml").symlink_to(tmp_path / "loop.toml")
+    with pytest.raises(ConfigError, match="cannot be read as a task file"):
+        phri.load_task(tmp_path / "loop.toml")

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import functools
 import math
+import os
+import stat
 import sys
 from dataclasses import dataclass, field
 from importlib import resources
@@ -32,6 +34,10 @@ else:  # pragma: no cover - Python 3.10
 __all__ = ["FeatureSpec", "Task", "load_task", "task_names"]
 
 STUDY_TASKS = ("human", "coffee", "table", "laptop")
+#: A task's name names its log and figure files: at most this many characters, each a letter, a
+#: digit or one of NAME_PUNCTUATION.
+MAX_NAME_LENGTH = 64
+NAME_PUNCTUATION = ("_", "-", ".")
 TASK_KEYS = (
     "name", "title", "angles", "start", "goal", "duration", "waypoints", "task_feature", "feature_frame",
     "features", "scene",
@@ -260,7 +266,7 @@ def _parse(data: dict[str, Any], source: str) -> Task:
         error = r.fail("feature_frame", f"a frame of {robot.name}", feature_frame)
         raise ConfigError(f"{error}{did_you_mean(feature_frame, robot.frame_names)}")
     task = Task(
-        name=r.string("name"),
+        name=_check_name(source, r.string("name")),
         title=r.string("title", ""),
         start=start,
         goal=goal,
@@ -290,15 +296,15 @@ def _read_text(source: str, file: Any) -> str:
             f"{source}: not UTF-8 text (line {line}, byte {e.start}: {raw[e.start : e.end]!r}); "
             "save the task file as UTF-8"
         ) from None
+    text = text.removeprefix("\ufeff")  # the byte-order mark some editors write
     return text.replace("\r\n", "\n").replace("\r", "\n")  # universal newlines, as read_text
 
 
 def load_task(name_or_path: str | Path) -> Task:
     """A shipped task by name (``"human"``, ``"coffee"``, ``"table"``, ``"laptop"``) or a TOML file."""
     path = Path(name_or_path)
-    if path.suffix == ".toml" or path.exists():
-        if not path.is_file():
-            raise ConfigError(f"{path}: task file not found")
+    if path.suffix == ".toml" or os.path.lexists(path):
+        _check_regular_file(path)
         source, text = str(path), _read_text(str(path), path)
     else:
         name = str(name_or_path)
@@ -311,4 +317,32 @@ def load_task(name_or_path: str | Path) -> Task:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{source}: not valid TOML ({e})") from None
+    except (ValueError, RecursionError) as e:  # an integer of thousands of digits, arrays nested deeply
+        raise ConfigError(f"{source}: not a task file phri can read ({type(e).__name__}: {e})") from None
     return _parse(data, source)
+
+
+def _check_regular_file(path: Path) -> None:
+    """Raises a ConfigError saying what `path` is unless it is a readable regular file: missing, a
+    folder, a FIFO or device (reading one would block), a symbolic-link loop."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: task file not found") from None
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot be read as a task file ({e.strerror})") from None
+    if stat.S_ISDIR(mode):
+        raise ConfigError(f"{path}: is a folder, not a task file")
+    if not stat.S_ISREG(mode):
+        raise ConfigError(f"{path}: is not a regular file (a FIFO, socket or device), not a task file")
+
+
+def _check_name(source: str, name: str) -> str:
+    """`name` unless it cannot name files: the task's name goes into log and figure file names."""
+    ok = 0 < len(name) <= MAX_NAME_LENGTH and not name.startswith(".")
+    if not ok or not all(c.isalnum() or c in NAME_PUNCTUATION for c in name):
+        raise ConfigError(
+            f"{source}: name must be 1-{MAX_NAME_LENGTH} letters, digits and {' '.join(NAME_PUNCTUATION)} "
+            f"(it names files), not starting with '.', got {name[:80]!r}"
+        )
+    return name

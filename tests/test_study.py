@@ -4,6 +4,7 @@ the backends' agreement, the statistics against hand computations, the report an
 from __future__ import annotations
 
 import dataclasses
+import errno
 import hashlib
 import json
 import os
@@ -1188,3 +1189,43 @@ def test_ray_address_where_nothing_answers_is_a_clear_error_at_once() -> None:
     with pytest.raises(ConnectionLostError, match=r"address '127.0.0.1:1': no Ray cluster answers"):
         RayBackend(TINY, workers=1, address="127.0.0.1:1")
     assert time.monotonic() - began < 30
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS, errno.EACCES])
+def test_refused_file_operations_are_one_line_errors(
+    reference: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    code: int,
+) -> None:
+    """Issue 16 #10: disk full, a read-only folder, no permission (injected: CI runs as root) give
+    one line naming the problem and exit status 3 from every command, and lose nothing."""
+    import phri.atomic
+
+    run_dir = copy_study(reference, tmp_path / "s")
+    kept = snapshot(run_dir)
+
+    def refuse(path, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        raise OSError(code, os.strerror(code), str(path))
+
+    monkeypatch.setattr(phri.atomic, "open", refuse, raising=False)
+    fresh = tmp_path / "fresh"
+    commands = [
+        ["study", str(fresh), *TINY_ARGS, "--backend", "serial", "--no-progress"],
+        ["report", str(run_dir)],
+        ["questionnaire", str(run_dir), "--import", str(_answers(tmp_path))],
+    ]
+    for command in commands:
+        assert cli(command) == 3, command
+        err = capsys.readouterr().err
+        assert f"phri {command[0]}: error: {os.strerror(code)}" in err and "Traceback" not in err
+    assert {k: v for k, v in snapshot(run_dir).items() if not k.endswith(".lock")} == kept
+
+
+def _answers(tmp_path: Path) -> Path:
+    path = tmp_path / "answers.csv"
+    path.write_text(
+        "participant,strategy," + ",".join(f"q{i}" for i in range(1, 11)) + "\n1,learning" + ",4" * 10 + "\n"
+    )
+    return path

@@ -98,6 +98,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def file_error(command: str, error: OSError) -> int:
+    """A file operation the system refused (read-only folder, no permission, disk full): one line
+    naming the file, never a traceback. phri's writes are atomic, so nothing written before is lost."""
+    what = error.strerror or str(error)
+    where = f" ({error.filename})" if error.filename else ""
+    print(
+        f"phri {command}: error: {what}{where}; nothing already written was changed or lost", file=sys.stderr
+    )
+    return 3
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose, args.quiet)
@@ -106,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     except PhriError as e:
         print(f"phri {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:
+        return file_error(args.command, e)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from phri._phri import UPDATE_RULES
+from phri.cli import file_error
 from phri.exceptions import PhriError
 
 __all__ = ["main", "register"]
@@ -218,6 +219,8 @@ def cmd_study(args: argparse.Namespace) -> int:
         return _fail(
             "study", ConnectionError(f"cannot reach the Ray cluster at --address {args.address!r}: {e}")
         )
+    except OSError as e:
+        return file_error("study", e)
     except KeyboardInterrupt as e:
         how = "terminated (SIGTERM)" if isinstance(e, _Terminated) else "interrupted"
         print(
@@ -256,6 +259,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         )
     except PhriError as e:
         return _fail("report", e)
+    except OSError as e:
+        return file_error("report", e)
     asked = args.out if args.out is not None else args.run_dir / "report"
     if path.parent != asked:
         print(f"{asked} exists and was left as it is; wrote a new folder")
@@ -298,6 +303,8 @@ def cmd_questionnaire(args: argparse.Namespace) -> int:
             print(f"saved to {target}")
     except PhriError as e:
         return _fail("questionnaire", e)
+    except OSError as e:
+        return file_error("questionnaire", e)
     return 0
 
 

@@ -354,3 +354,16 @@ def test_concurrent_imports_lose_no_answer(tmp_path: Path) -> None:
     table = q.read_responses(tmp_path / "answers.csv")
     assert sorted(table["participant"]) == list(range(1, 13))
     assert (tmp_path / "answers.csv").read_text().startswith(HEADER + "\n")
+
+
+def test_excel_and_latin1_files(tmp_path: Path) -> None:
+    """Issue 16 #11, #21: Excel's CSV UTF-8 (a byte-order mark, CRLF) is read; a Latin-1 file is a
+    QuestionnaireError naming the line, not a UnicodeDecodeError."""
+    rows = [HEADER, "1,learning" + ",4" * 10]
+    excel = tmp_path / "excel.csv"
+    excel.write_bytes(b"\xef\xbb\xbf" + "\r\n".join(rows).encode() + b"\r\n")
+    assert list(q.read_responses(excel)["participant"]) == [1]
+    latin = tmp_path / "latin.csv"
+    latin.write_bytes("\n".join([HEADER + ",note", "1,learning" + ",4" * 10 + ",caf\xe9"]).encode("latin-1"))
+    with pytest.raises(QuestionnaireError, match=r"latin.csv: line 2: byte b'\\xe9' is not UTF-8"):
+        q.read_responses(latin)

@@ -278,11 +278,23 @@ def test_a_task_without_a_scene_plans_clear_of_nothing_but_itself(world) -> None
         (lambda: ParticipantParams(release=1.5), "release must be a fraction of the tolerance"),
         (lambda: EpisodeConfig(sensor_noise=float("inf")), "sensor_noise must be a finite value"),
         (lambda: EpisodeConfig(rule="MAX"), "rule must be one of"),
+        (lambda: WorldParams(timestep=0.0), r"timestep must be a number in \[1e-05, 0.01\] s, got 0.0"),
+        (lambda: WorldParams(timestep=float("nan")), "timestep must be a number in"),
+        (lambda: WorldParams(gravity=1e300), "gravity must be a number in"),
+        (lambda: WorldParams(joint_damping=-1.0), "joint_damping must be a number in"),
     ],
 )
 def test_bad_participant_and_episode_settings_are_clear_errors(make, pattern) -> None:
     with pytest.raises(InvalidParameterError, match="^" + pattern):
         make()
+
+
+def test_frame_times_must_be_times_of_the_task(world) -> None:
+    """Issue 16 #11: run_episode(frame_times=[nan]) is an error naming the argument."""
+    task = shortened(phri.load_task("table"), 1.0, 5)
+    for bad in (float("nan"), -1.0, 2.0, "1"):
+        with pytest.raises(InvalidParameterError, match=r"^frame_times\[0\] must be a time in \[0, 1\] s"):
+            run_episode(task, world, ParticipantParams(), frame_times=[bad])
 
 
 def test_the_result_row_reports_the_task_features_weight(world) -> None:

@@ -511,6 +511,11 @@ def simulate_episode(
     (its `log_arrays` hold the log, in memory) and the error that stopped the simulation early (None
     if it ran to the end; the result then covers the time simulated). Set-up errors are raised."""
     config = config or EpisodeConfig()
+    for i, ft in enumerate(frame_times):
+        if isinstance(ft, bool) or not isinstance(ft, int | float) or not 0 <= ft <= task.duration:
+            raise InvalidParameterError(
+                f"frame_times[{i}] must be a time in [0, {task.duration:g}] s, got {ft!r}"
+            )
     began = time.perf_counter()
     parts = _set_up(task, world, participant_params, config, seed, planner)
     initial_weights = parts.learner.weights

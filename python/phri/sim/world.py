@@ -25,8 +25,9 @@ import numpy as np
 
 from phri import robots
 from phri._phri import Robot, Scene, SceneObject
+from phri._validate import must_be
 from phri.config import TABLE
-from phri.exceptions import SimulationError
+from phri.exceptions import InvalidParameterError, SimulationError
 
 __all__ = ["CUP_INERTIA", "CUP_MASS", "World", "WorldParams"]
 
@@ -46,12 +47,32 @@ MOUNT_DEPTH = 0.7
 
 @dataclass(frozen=True)
 class WorldParams:
-    """Physics settings. The defaults are the study's: 1 kHz, gravity 9.81 m/s²."""
+    """Physics settings. The defaults are the study's: 1 kHz, gravity 9.81 m/s². Each is refused
+    outside the range in which the simulated arm means something (an InvalidParameterError naming
+    it): timestep in [1e-5, 0.01] s, gravity in [0, 100] m/s², joint_damping in [0, 1000] N·m·s/rad."""
 
     timestep: float = 1e-3  # s
     gravity: float = 9.81  # m/s²
     gui: bool = False
     joint_damping: float = 0.0  # N·m·s/rad of viscous friction in every joint (0 = ideal arm)
+
+    def __post_init__(self) -> None:
+        for key, (low, high, unit) in WORLD_RANGES.items():
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
+                raise must_be(
+                    key, f"a number in [{low:g}, {high:g}] {unit}", value, error=InvalidParameterError
+                )
+        if not isinstance(self.gui, bool):
+            raise must_be("gui", "True or False", self.gui, error=InvalidParameterError)
+
+
+#: The accepted range of each WorldParams number (low, high, unit).
+WORLD_RANGES = {
+    "timestep": (1e-5, 1e-2, "s"),
+    "gravity": (0.0, 100.0, "m/s²"),
+    "joint_damping": (0.0, 1000.0, "N·m·s/rad"),
+}
 
 
 def _flush_all() -> None:

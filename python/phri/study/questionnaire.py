@@ -236,16 +236,16 @@ def read_responses(path: str | Path) -> pd.DataFrame:
     columns are ignored). Errors name the file, the line and the column."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        data = path.read_bytes()
     except OSError as e:
         raise QuestionnaireError(f"{path}: cannot read the questionnaire file ({e.strerror})") from None
     try:
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark.
-        text = raw.decode("utf-8-sig").replace("\r\n", "\n")
+        text = data.decode("utf-8-sig").replace("\r\n", "\n")
     except UnicodeDecodeError as e:
-        line = raw[: e.start].count(b"\n") + 1
+        line = data[: e.start].count(b"\n") + 1
         raise QuestionnaireError(
-            f"{path}: line {line}: byte {raw[e.start : e.end]!r} is not UTF-8 (a Latin-1 or Windows "
+            f"{path}: line {line}: byte {data[e.start : e.end]!r} is not UTF-8 (a Latin-1 or Windows "
             "file?); save the questionnaire as CSV UTF-8"
         ) from None
     reader = csv.DictReader(io.StringIO(text))

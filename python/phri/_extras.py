@@ -20,7 +20,8 @@ from phri.exceptions import MissingExtraError
 
 __all__ = ["EXTRA_OF", "INCLUDES", "NEEDS", "available", "check", "check_part", "require"]
 
-#: The extra that brings each optional top-level module (its distribution has the same name).
+#: The extra that brings each optional top-level module (its distribution has the same name, with
+#: "-" for "_").
 EXTRA_OF: dict[str, str] = {
     "pybullet": "sim",
     "matplotlib": "sim",
@@ -30,6 +31,7 @@ EXTRA_OF: dict[str, str] = {
     "pyarrow": "parquet",
     "ray": "ray",
     "pylibfranka": "franka",
+    "franky_sim": "franka-sim",
 }
 
 #: Extras that install other extras: ``phri[study]`` brings ``phri[sim]`` too.

@@ -1,0 +1,236 @@
+"""A Franka (FR3 / Panda) over libfranka's official Python bindings (``pylibfranka``, the
+``phri[franka]`` extra), as a :class:`phri.control.backend.Backend`: 1 kHz torque control, the
+robot compensating gravity itself, and the robot's own estimate of the external torque as the
+person's push. The same code drives a real arm or franky-sim's simulated one (``phri[franka-sim]``),
+which speaks the same protocol on a loopback address.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from phri._extras import require
+from phri._phri import Robot
+from phri.control.backend import RobotState
+from phri.exceptions import ConnectionLostError, InvalidParameterError, RobotFaultError
+
+__all__ = ["COMMAND_PORT", "CollisionThresholds", "FrankaBackend", "fault_message"]
+
+#: The TCP port of the robot's command interface (libfranka's, and franky-sim's).
+COMMAND_PORT = 1337
+#: The Franka's joint count.
+JOINTS = 7
+#: What each of the robot's own modes means for an operator, and the recovery to do.
+MODE_RECOVERY = {
+    "Reflex": "the robot stopped itself (a collision or limit reflex); clear the cause, then call "
+    "automatic_error_recovery() (phri does so on the next connect)",
+    "UserStopped": "the user stop is pressed; release it, then restart the episode",
+    "AutomaticErrorRecovery": "the robot is recovering from an error; wait until it is idle",
+}
+
+
+@dataclass(frozen=True)
+class CollisionThresholds:
+    """The robot's collision reflex thresholds (libfranka's ``set_collision_behavior``): a joint
+    torque [N·m] or a Cartesian force/torque [N, N·m] beyond the upper threshold stops the robot.
+
+    Twice the thresholds of libfranka's examples (20, 20, 18, 18, 16, 14, 12 N·m; 20 N and 25 N·m)
+    so that a person's firm push, which phri learns from, is not a reflex; phri's own limits and
+    virtual wall act first."""
+
+    joint_lower: tuple[float, ...] = (40.0, 40.0, 36.0, 36.0, 32.0, 28.0, 24.0)
+    joint_upper: tuple[float, ...] = (40.0, 40.0, 36.0, 36.0, 32.0, 28.0, 24.0)
+    force_lower: tuple[float, ...] = (40.0, 40.0, 40.0, 50.0, 50.0, 50.0)
+    force_upper: tuple[float, ...] = (40.0, 40.0, 40.0, 50.0, 50.0, 50.0)
+
+    def __post_init__(self) -> None:
+        for key, size in (("joint_lower", 7), ("joint_upper", 7), ("force_lower", 6), ("force_upper", 6)):
+            value = tuple(float(v) for v in getattr(self, key))
+            if len(value) != size or not all(math.isfinite(v) and v > 0 for v in value):
+                raise InvalidParameterError(f"{key} must be {size} finite thresholds > 0, got {value}")
+            object.__setattr__(self, key, value)
+        for lower, upper in (("joint_lower", "joint_upper"), ("force_lower", "force_upper")):
+            if any(a > b for a, b in zip(getattr(self, lower), getattr(self, upper), strict=True)):
+                raise InvalidParameterError(f"{lower} must not exceed {upper}")
+
+
+def fault_message(state: Any) -> str | None:
+    """The robot's own reflex or error state in `state` (a pylibfranka RobotState) as a message
+    naming it and the recovery to do; None while there is none."""
+    mode = getattr(state.robot_mode, "name", str(state.robot_mode))
+    errors = state.current_errors
+    active = [name for name in dir(errors) if not name.startswith("_") and getattr(errors, name) is True]
+    if not active and mode not in MODE_RECOVERY:
+        return None
+    parts = [f"robot mode {mode}"]
+    if active:
+        parts.append("errors: " + ", ".join(active))
+    recovery = MODE_RECOVERY.get(mode, MODE_RECOVERY["Reflex"])
+    return f"the robot reports {'; '.join(parts)}: {recovery}"
+
+
+class FrankaBackend:
+    """A Franka over libfranka: :meth:`start` connects and starts torque control, :meth:`read` and
+    :meth:`write` are one 1 kHz tick, :meth:`stop` ends control.
+
+    `host`: the robot's address (franky-sim prints its loopback one). `robot`: phri's model of the
+    arm (its joint count must be 7). `connect_timeout` [s]: an address where nothing answers is a
+    ConnectionLostError after at most this long, never a hang. `realtime`: require a real-time
+    kernel as on hardware (libfranka refuses to run without one otherwise); False for franky-sim on
+    a desktop. `thresholds`: the robot's collision reflexes. `load`: the mass [kg], centre of mass
+    in the flange frame [m] and inertia (3×3, [kg·m²]) of what the hand holds (hand and cup), or
+    None to keep the robot's configured load."""
+
+    period = 1e-3
+    gravity_compensated = True
+
+    def __init__(
+        self,
+        host: str,
+        robot: Robot,
+        *,
+        connect_timeout: float = 5.0,
+        realtime: bool = True,
+        thresholds: CollisionThresholds | None = None,
+        load: tuple[float, Sequence[float], Sequence[Sequence[float]]] | None = None,
+    ) -> None:
+        if not isinstance(host, str) or not host:
+            raise InvalidParameterError(f"host must be the robot's address, got {host!r}")
+        if robot.nq != JOINTS:
+            raise InvalidParameterError(f"robot must be a {JOINTS}-joint Franka model, got {robot.nq} joints")
+        if not (isinstance(connect_timeout, int | float) and 0 < connect_timeout <= 600):
+            raise InvalidParameterError(f"connect_timeout must be in (0, 600] s, got {connect_timeout!r}")
+        self.host, self.robot, self.connect_timeout, self.realtime = (
+            host,
+            robot,
+            float(connect_timeout),
+            realtime,
+        )
+        self.thresholds = thresholds or CollisionThresholds()
+        self.load = load
+        self._franka = require("pylibfranka", "the Franka backend")
+        self._robot: Any = None
+        self._control: Any = None
+        self._t0: float | None = None
+        self._torques = [0.0] * JOINTS
+
+    # -- connection ------------------------------------------------------------------------------
+
+    def _connect(self) -> Any:
+        """libfranka's Robot at `host`, or ConnectionLostError within the timeout. The port is probed
+        first (a closed one fails at once), then libfranka connects in a thread joined with the
+        timeout: it blocks, holding the interpreter, while it waits for an answer."""
+        try:
+            socket.create_connection((self.host, COMMAND_PORT), timeout=self.connect_timeout).close()
+        except OSError as e:
+            raise ConnectionLostError(
+                f"host {self.host!r}: no robot answers on port {COMMAND_PORT} within "
+                f"{self.connect_timeout:g} s ({e})"
+            ) from None
+        franka = self._franka
+        config = franka.RealtimeConfig.kEnforce if self.realtime else franka.RealtimeConfig.kIgnore
+        out: dict[str, Any] = {}
+
+        def connect() -> None:
+            try:
+                out["robot"] = franka.Robot(self.host, config)
+            except Exception as e:  # noqa: BLE001 - handed to the caller below
+                out["error"] = e
+
+        thread = threading.Thread(target=connect, name="phri-franka-connect", daemon=True)
+        thread.start()
+        thread.join(self.connect_timeout)
+        if thread.is_alive():
+            raise ConnectionLostError(
+                f"host {self.host!r}: the robot did not finish connecting within {self.connect_timeout:g} s"
+            )
+        if "error" in out:
+            error = out["error"]
+            if isinstance(error, franka.RealtimeException):
+                raise InvalidParameterError(
+                    f"host {self.host!r}: {error}; run on a real-time kernel (see the docs), or pass "
+                    "realtime=False for a simulator"
+                ) from None
+            raise ConnectionLostError(f"host {self.host!r}: {error}") from None
+        return out["robot"]
+
+    def start(self, q_start: np.ndarray) -> RobotState:
+        """Connects, clears a pending reflex, sets the collision thresholds and the load, and starts
+        torque control. The arm stays where it is (`q_start` is for the loop to drive it to)."""
+        robot = self._connect()
+        self._robot = robot
+        try:
+            state = robot.read_once()
+            if fault_message(state) is not None:
+                robot.automatic_error_recovery()
+            th = self.thresholds
+            robot.set_collision_behavior(th.joint_lower, th.joint_upper, th.force_lower, th.force_upper)
+            if self.load is not None:
+                mass, com, inertia = self.load
+                robot.set_load(
+                    float(mass), [float(c) for c in com], [float(v) for v in np.asarray(inertia).T.ravel()]
+                )
+            self._control = robot.start_torque_control()
+        except self._franka.NetworkException as e:
+            self.stop()
+            raise ConnectionLostError(f"host {self.host!r}: {e}") from None
+        except (self._franka.ControlException, self._franka.CommandException) as e:
+            self.stop()
+            raise RobotFaultError(f"host {self.host!r}: the robot refused torque control: {e}") from None
+        return self.read()
+
+    # -- one tick ----------------------------------------------------------------------------------
+
+    def read(self) -> RobotState:
+        if self._control is None:
+            raise ConnectionLostError(f"host {self.host!r}: not connected (call start first)")
+        try:
+            state, _ = self._control.readOnce()
+        except self._franka.NetworkException as e:
+            raise ConnectionLostError(f"host {self.host!r}: the robot stopped answering: {e}") from None
+        except self._franka.ControlException as e:
+            return self._state(None, fault=f"the robot aborted control: {e}; {MODE_RECOVERY['Reflex']}")
+        return self._state(state)
+
+    def _state(self, state: Any, fault: str | None = None) -> RobotState:
+        if state is None:
+            nan = np.full(JOINTS, np.nan)
+            return RobotState(t=math.nan, q=nan, qd=nan.copy(), tau_ext=nan.copy(), fault=fault)
+        t = state.time.to_sec()
+        if self._t0 is None:
+            self._t0 = t
+        return RobotState(
+            t=t - self._t0,
+            q=np.asarray(state.q, dtype=float),
+            qd=np.asarray(state.dq, dtype=float),
+            tau_ext=np.asarray(state.tau_ext_hat_filtered, dtype=float),
+            fault=fault or fault_message(state),
+        )
+
+    def write(self, tau: np.ndarray) -> None:
+        if self._control is None:
+            raise ConnectionLostError(f"host {self.host!r}: not connected (call start first)")
+        torques = self._torques
+        for j in range(JOINTS):
+            torques[j] = float(tau[j])
+        try:
+            self._control.writeOnce(self._franka.Torques(torques))
+        except self._franka.NetworkException as e:
+            raise ConnectionLostError(f"host {self.host!r}: the robot stopped answering: {e}") from None
+        except self._franka.ControlException as e:
+            raise RobotFaultError(f"host {self.host!r}: the robot aborted control: {e}") from None
+
+    def stop(self) -> None:
+        robot, self._robot, self._control = self._robot, None, None
+        if robot is not None:
+            try:
+                robot.stop()
+            except Exception:  # noqa: BLE001, S110 - an arm already gone has nothing to stop
+                pass

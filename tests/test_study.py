@@ -179,7 +179,7 @@ def test_study_toml(tmp_path: Path) -> None:
         participants=4, seed=3, tasks=("human", "table"), duration=3.0
     )
     for text, match in [
-        ("participants = 0\n", "participants must be an integer >= 1"),
+        ("participants = 0\n", "participants must be an integer in \\[1, 10000\\]"),
         ("participants = 'ten'\n", "participants"),
         ("participant = 10\n", "unknown key"),
         ("participants = [\n", "not valid TOML"),
@@ -1077,7 +1077,7 @@ def test_report_of_a_study_without_episodes(tmp_path: Path) -> None:
 def test_cli_errors_are_clear(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli(["study", str(tmp_path / "s"), "--participants", "0", "--no-progress"]) == 2
     err = capsys.readouterr().err
-    assert "phri study: error:" in err and "participants must be an integer >= 1, got 0" in err
+    assert "phri study: error:" in err and "participants must be an integer in [1, 10000], got 0" in err
     assert not (tmp_path / "s").exists()
     bad = tmp_path / "bad.toml"
     bad.write_text("participants = [")

@@ -16,6 +16,9 @@ import pytest
 from franky_server import franky_server
 
 import phri
+import phri.config
+import phri.exceptions
+import phri.robots
 
 CONFIGS = [
     [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785],
@@ -55,3 +58,21 @@ def test_fr3_matches_libfranka_model(libfranka):
         np.testing.assert_allclose(fr3.gravity(q), g, atol=TOL, rtol=0)
         np.testing.assert_allclose(fr3.mass_matrix(q), m, atol=TOL, rtol=0)
         np.testing.assert_allclose(fr3.jacobian(tcp, q), j, atol=TOL, rtol=0)
+
+
+def test_descriptions_carry_their_interaction_thresholds():
+    assert phri.robots.load("jaco2").thresholds == (8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0)
+    fr3 = phri.robots.load("fr3").thresholds
+    assert fr3 is not None and len(fr3) == 7 and all(t > 0 for t in fr3)
+
+
+def test_fr3_collision_model_is_complete():
+    fr3 = phri.Robot.from_description("fr3")
+    assert fr3.collision_complete, fr3.collision_incomplete_reason
+
+
+def test_a_task_for_another_robot_is_a_config_error():
+    task = phri.config.load_task("table")
+    assert task.robot == "jaco2"
+    with pytest.raises(phri.exceptions.ConfigError, match="posed for robot 'jaco2'"):
+        task.feature_set(phri.Robot.from_description("fr3"))

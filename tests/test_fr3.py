@@ -40,7 +40,7 @@ def libfranka():
 
 def test_fr3_matches_libfranka_model(libfranka):
     state, model = libfranka
-    fr3 = phri.Robot.from_description("fr3")
+    fr3 = phri.Robot.fr3()
     tcp = fr3.hand_frame
     # The pose the server reports for its own state (O_T_EE, column-major, single precision).
     q0 = np.array(state.q)
@@ -67,7 +67,7 @@ def test_descriptions_carry_their_interaction_thresholds():
 
 
 def test_fr3_collision_model_is_complete():
-    fr3 = phri.Robot.from_description("fr3")
+    fr3 = phri.Robot.fr3()
     assert fr3.collision_complete, fr3.collision_incomplete_reason
 
 
@@ -75,4 +75,4 @@ def test_a_task_for_another_robot_is_a_config_error():
     task = phri.config.load_task("table")
     assert task.robot == "jaco2"
     with pytest.raises(phri.exceptions.ConfigError, match="posed for robot 'jaco2'"):
-        task.feature_set(phri.Robot.from_description("fr3"))
+        task.feature_set(phri.Robot.fr3())

@@ -76,3 +76,19 @@ def test_a_task_for_another_robot_is_a_config_error():
     assert task.robot == "jaco2"
     with pytest.raises(phri.exceptions.ConfigError, match="posed for robot 'jaco2'"):
         task.feature_set(phri.Robot.fr3())
+
+
+@pytest.mark.parametrize("name", ["fr3_table"])
+def test_fr3_tasks_plan_clear_and_converged(name):
+    from phri._phri import TrajectoryOptimizer
+
+    task = phri.config.load_task(name)
+    fr3 = phri.Robot.fr3()
+    assert task.robot == "fr3"
+    fr3.check_limits(task.start)
+    fr3.check_limits(task.goal)
+    features = task.feature_set(fr3)
+    optimizer = TrajectoryOptimizer(features, task.waypoints, duration=task.duration, speed_fraction=0.5)
+    _, info = optimizer.solve(task.vector("true"), task.start, task.goal)
+    assert info.feasible and info.converged
+    assert info.max_violation <= TrajectoryOptimizer.CLEARANCE_TOLERANCE

@@ -102,7 +102,8 @@ def test_bad_values_name_the_key_and_the_expectation(tmp_path, old, new, message
 
 def test_unknown_task_names_list_the_known_ones() -> None:
     with pytest.raises(
-        UnknownNameError, match="known: coffee, fr3_coffee, fr3_laptop, fr3_table, human, laptop, table"
+        UnknownNameError,
+        match="known: coffee, fr3_coffee, fr3_human, fr3_laptop, fr3_table, human, laptop, table",
     ):
         phri.load_task("kitchen")
     with pytest.raises(ConfigError, match="not found"):

@@ -78,7 +78,7 @@ def test_a_task_for_another_robot_is_a_config_error():
         task.feature_set(phri.Robot.fr3())
 
 
-@pytest.mark.parametrize("name", ["fr3_coffee", "fr3_laptop", "fr3_table"])
+@pytest.mark.parametrize("name", ["fr3_coffee", "fr3_human", "fr3_laptop", "fr3_table"])
 def test_fr3_tasks_plan_clear_and_converged(name):
     from phri._phri import TrajectoryOptimizer
 

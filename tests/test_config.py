@@ -24,6 +24,7 @@ def test_the_four_study_tasks_ship_with_their_numbers() -> None:
     assert phri.task_names() == [
         "coffee",
         "fr3_coffee",
+        "fr3_human",
         "fr3_laptop",
         "fr3_table",
         "human",

@@ -21,7 +21,16 @@ else:  # pragma: no cover - Python 3.10
 
 
 def test_the_four_study_tasks_ship_with_their_numbers() -> None:
-    assert phri.task_names() == ["coffee", "human", "laptop", "table"]
+    assert phri.task_names() == [
+        "coffee",
+        "fr3_coffee",
+        "fr3_human",
+        "fr3_laptop",
+        "fr3_table",
+        "human",
+        "laptop",
+        "table",
+    ]
     table = phri.load_task("table")
     assert table.feature_names == ["efficiency", "table"]
     np.testing.assert_allclose(np.rad2deg(table.start), [104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8])
@@ -93,7 +102,10 @@ def test_bad_values_name_the_key_and_the_expectation(tmp_path, old, new, message
 
 
 def test_unknown_task_names_list_the_known_ones() -> None:
-    with pytest.raises(UnknownNameError, match="known: coffee, human, laptop, table"):
+    with pytest.raises(
+        UnknownNameError,
+        match="known: coffee, fr3_coffee, fr3_human, fr3_laptop, fr3_table, human, laptop, table",
+    ):
         phri.load_task("kitchen")
     with pytest.raises(ConfigError, match="not found"):
         phri.load_task("/does/not/exist.toml")
@@ -121,7 +133,8 @@ def _shipped_text(name: str) -> str:
             "duration = 15.0",
             "duraton = 15.0",
             "unknown key 'duraton' in the top-level table; allowed keys: name, title, angles, start, goal, "
-            "duration, waypoints, task_feature, feature_frame, features, scene; did you mean 'duration'?",
+            "duration, waypoints, task_feature, feature_frame, features, scene, robot; "
+            "did you mean 'duration'?",
         ),
         (
             "radius = 0.15",

@@ -74,7 +74,7 @@ def _tasks(args: argparse.Namespace) -> int:
 
     for name in task_names():
         task = load_task(name)
-        print(f"{name:<8} {task.title}  (features: {', '.join(task.feature_names)})")
+        print(f"{name:<9} {task.title}  (features: {', '.join(task.feature_names)})")
     return 0
 
 

@@ -40,7 +40,7 @@ MAX_NAME_LENGTH = 64
 NAME_PUNCTUATION = ("_", "-", ".")
 TASK_KEYS = (
     "name", "title", "angles", "start", "goal", "duration", "waypoints", "task_feature", "feature_frame",
-    "features", "scene",
+    "features", "scene", "robot",
 )  # fmt: skip
 #: Keys of a [features.<name>] table besides the feature's own parameters (FEATURE_PARAMETERS).
 WEIGHT_KEYS = ("initial", "true", "step", "lower", "upper", "learned")
@@ -85,6 +85,8 @@ class Task:
     source: str = "<memory>"
     #: The frame the features read (None: the robot's feature frame).
     feature_frame: str | None = None
+    #: The shipped robot the task is posed for ("jaco2" when the file names none).
+    robot: str = "jaco2"
 
     @property
     def feature_names(self) -> list[str]:
@@ -99,7 +101,12 @@ class Task:
         return self.feature_names.index(self.task_feature)
 
     def feature_set(self, robot: Robot, *, ranges: Any = None) -> Features:
-        """The task's features over `robot`, keep-out features placed by the task's scene."""
+        """The task's features over `robot`, keep-out features placed by the task's scene; a robot
+        other than the task's is a ConfigError."""
+        if robot.name != _robot(self.robot).name:
+            raise ConfigError(
+                f"{self.source}: task '{self.name}' is posed for robot '{self.robot}', not {robot.name}"
+            )
         return Features(
             robot,
             [f.feature() for f in self.features],
@@ -111,7 +118,7 @@ class Task:
     def keep_out_circle(self, feature: str) -> tuple[tuple[float, float], float] | None:
         """Centre (x, y) [m] and radius [m] of keep-out feature `feature`'s circle (None if the task
         has no such keep-out feature)."""
-        return self.feature_set(_robot()).keep_out_circles.get(feature)
+        return self.feature_set(_robot(self.robot)).keep_out_circles.get(feature)
 
 
 def task_names() -> list[str]:
@@ -121,9 +128,9 @@ def task_names() -> list[str]:
 
 
 @functools.cache
-def _robot() -> Robot:
-    """The robot every task drives (task files cannot name another one)."""
-    return Robot.jaco2()
+def _robot(name: str = "jaco2") -> Robot:
+    """The shipped robot `name` a task is posed for."""
+    return Robot.from_description(name)
 
 
 def _format_angle(value: float) -> str:
@@ -132,7 +139,11 @@ def _format_angle(value: float) -> str:
 
 def _check_limits(r: Reader, key: str, q: np.ndarray, scale: float, unit: str) -> None:
     """`q` [rad] within the robot's joint limits, as Planner checks it; the error is in the file's unit."""
-    robot = _robot()
+    robot_name = r.string("robot", "jaco2")
+    try:
+        robot = _robot(robot_name)
+    except PhriError as e:
+        raise r.fail("robot", "the name of a shipped robot (e.g. 'jaco2', 'fr3')", robot_name) from e
     lower, upper = robot.lower_limits, robot.upper_limits
     raw = r.get(key)
     bad = [
@@ -261,11 +272,16 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     if task_feature not in feats:
         raise r.fail("task_feature", f"one of the task's features {list(feats)}", task_feature)
     feature_frame = r.optional_string("feature_frame")
-    robot = _robot()
+    robot_name = r.string("robot", "jaco2")
+    try:
+        robot = _robot(robot_name)
+    except PhriError as e:
+        raise r.fail("robot", "the name of a shipped robot (e.g. 'jaco2', 'fr3')", robot_name) from e
     if feature_frame is not None and feature_frame not in robot.frame_names:
         error = r.fail("feature_frame", f"a frame of {robot.name}", feature_frame)
         raise ConfigError(f"{error}{did_you_mean(feature_frame, robot.frame_names)}")
     task = Task(
+        robot=robot_name,
         name=_check_name(source, r.string("name")),
         title=r.string("title", ""),
         start=start,

@@ -163,6 +163,13 @@ impl PyRobot {
         Self::from_description(py, &"jaco2".into_pyobject(py)?.into_any())
     }
 
+    /// The Franka Research 3 (FR3) 7-DoF arm with the Franka Hand, from the description shipped
+    /// with phri (`phri/robots/fr3/robot.toml`).
+    #[staticmethod]
+    fn fr3(py: Python<'_>) -> PyResult<Self> {
+        Self::from_description(py, &"fr3".into_pyobject(py)?.into_any())
+    }
+
     /// The frame the features read unless told otherwise (None if the robot has no description).
     #[getter]
     fn feature_frame(&self) -> Option<&str> {

@@ -24,7 +24,10 @@ else:  # pragma: no cover - Python 3.10
 
 __all__ = ["CarriedObject", "RobotDescription", "load"]
 
-DESCRIPTION_KEYS = ("urdf", "base", "tip", "feature_frame", "hand_frame", "cup_frame", "carried")
+DESCRIPTION_KEYS = (
+    "urdf", "base", "tip", "feature_frame", "hand_frame", "cup_frame", "carried", "interaction",
+)  # fmt: skip
+INTERACTION_KEYS = ("thresholds",)
 CARRIED_KEYS = ("urdf", "frame")
 #: The carried object whose frame is the description's `cup_frame`.
 CUP = "cup"
@@ -68,6 +71,9 @@ class RobotDescription:
     cup_frame: str | None = None
     #: What the robot carries, in the order of the file's tables.
     carried: tuple[CarriedObject, ...] = ()
+    #: The interaction detector's per-joint thresholds [N·m] ([interaction] thresholds; None if
+    #: the description gives none).
+    thresholds: tuple[float, ...] | None = None
 
     def urdf_text(self) -> str:
         """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
@@ -98,9 +104,19 @@ def load(name_or_path: str | Path) -> RobotDescription:
                 "cup_frame", f"left out or the frame of [carried.{CUP}] ({cup.frame!r})", frames["cup_frame"]
             )
         frames["cup_frame"] = cup.frame
+    interaction = r.table_of("interaction", INTERACTION_KEYS)
+    thresholds = None
+    if "thresholds" in interaction.table:
+        raw = interaction.get("thresholds")
+        count = len(raw) if isinstance(raw, list) else 0
+        v = interaction.vector("thresholds", max(count, 1))
+        if not (v > 0).all():
+            raise interaction.fail("thresholds", "a list of positive numbers [N·m], one per joint", raw)
+        thresholds = tuple(float(x) for x in v)
     return RobotDescription(
-        source, path.parent / r.string("urdf"), r.string("base"), r.string("tip"), **frames, carried=carried
-    )
+        source, path.parent / r.string("urdf"), r.string("base"), r.string("tip"), **frames,
+        carried=carried, thresholds=thresholds,
+    )  # fmt: skip
 
 
 def _carried(r: Reader, folder: Path) -> tuple[CarriedObject, ...]:

@@ -13,12 +13,12 @@ from __future__ import annotations
 import numpy as np
 import pylibfranka
 import pytest
-from franky_server import franky_server
 
 import phri
 import phri.config
 import phri.exceptions
 import phri.robots
+from phri.franka.sim_server import SimServer
 
 CONFIGS = [
     [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785],
@@ -31,8 +31,8 @@ TOL = 1e-6
 
 @pytest.fixture(scope="module")
 def libfranka():
-    with franky_server("127.0.14.9") as host:
-        robot = pylibfranka.Robot(host, pylibfranka.RealtimeConfig.kIgnore)
+    with SimServer("127.0.14.9") as server:
+        robot = pylibfranka.Robot(server.host, pylibfranka.RealtimeConfig.kIgnore)
         state = robot.read_once()
         yield state, robot.load_model()
         del robot

@@ -92,3 +92,17 @@ def test_fr3_tasks_plan_clear_and_converged(name):
     _, info = optimizer.solve(task.vector("true"), task.start, task.goal)
     assert info.feasible and info.converged
     assert info.max_violation <= TrajectoryOptimizer.CLEARANCE_TOLERANCE
+
+
+def test_the_study_figures_read_an_fr3_log_with_the_fr3(tmp_path):
+    """The path figure's forward kinematics are those of the task's robot, not the JACO2's."""
+    from phri.study import figures
+
+    robot = phri.Robot.fr3()
+    q = np.array(CONFIGS)
+    log = tmp_path / "fr3.npz"
+    np.savez(log, t=np.linspace(0.0, 3.0, len(q)), q=q, desired=q)
+    paths = figures.read_paths(log, None, "fr3")
+    np.testing.assert_allclose(
+        paths["executed"], robot.frame_pose(robot.feature_frame, q)[:, :3, 3], atol=1e-12
+    )

@@ -167,15 +167,16 @@ def log_rate(log: str | Path) -> float:
     return float(1.0 / np.median(np.diff(t))) if t.size > 1 else float("nan")
 
 
-def read_paths(log: str | Path, frame: str | None = None) -> dict[str, np.ndarray]:
-    """From an episode log: time `t` [s], the executed path of `frame` (the task's feature frame;
-    None: the JACO2's) at the log rate, and the desired plan's path sampled at the same times (cubic
+def read_paths(log: str | Path, frame: str | None = None, robot: str = "jaco2") -> dict[str, np.ndarray]:
+    """From an episode log of `robot` (a shipped robot's name or a description file, the task's
+    ``robot``): time `t` [s], the executed path of `frame` (the task's feature frame; None: the
+    robot's) at the log rate, and the desired plan's path sampled at the same times (cubic
     interpolation of its waypoints), each (N, 3) [m]."""
     from phri._phri import Robot, TimedTrajectory
 
     t, q, desired = read_log(log, "t", "q", "desired")
-    robot = Robot.jaco2()
-    cup = frame or robot.feature_frame
+    model = Robot.from_description(robot)
+    cup = frame or model.feature_frame
     if cup is None:
         raise InvalidParameterError("frame: the robot's description names no feature frame; pass one")
     duration = float(t[-1]) if len(t) > 1 else 1.0
@@ -183,8 +184,8 @@ def read_paths(log: str | Path, frame: str | None = None) -> dict[str, np.ndarra
     q_desired = plan.sample_many(t)[0]
     return {
         "t": t,
-        "executed": robot.frame_pose(cup, q)[:, :3, 3],
-        "desired": robot.frame_pose(cup, q_desired)[:, :3, 3],
+        "executed": model.frame_pose(cup, q)[:, :3, 3],
+        "desired": model.frame_pose(cup, q_desired)[:, :3, 3],
     }
 
 
@@ -197,13 +198,14 @@ def plot_paths(
     title: str = "",
     keep_out: tuple[tuple[float, float], float] | None = None,
     frame: str | None = None,
+    robot: str = "jaco2",
 ) -> Path:
     """Fig. 5 (right): the path of the cup (the task's feature frame `frame`, see
     :func:`read_paths`) for each strategy against the desired path, seen from above (x, y) and its
     height over time. `logs` maps a strategy to its episode log; the desired path is that of the first
     log; `scene`'s laptop and table top and the task's `keep_out` circle (centre, radius [m]) are
-    drawn if given."""
-    paths = {strategy: read_paths(log, frame) for strategy, log in logs.items()}
+    drawn if given. `robot`: the robot the logs are of (the task's ``robot``)."""
+    paths = {strategy: read_paths(log, frame, robot) for strategy, log in logs.items()}
     first = next(iter(paths.values()))
     for target in _paths(path):  # phri.plots writes one file a call, its format from the suffix
         plot_path_figure(

@@ -500,7 +500,7 @@ def _figures(
     try:
         fig_paths = figures.plot_paths(
             logs, out / "fig5_paths.png", scene=shown.scene, task=t, keep_out=shown.keep_out_circle(t),
-            frame=shown.feature_frame,
+            frame=shown.feature_frame, robot=shown.robot,
             title=f"Participant {p}, task '{t}', first attempt: executed cup path per strategy vs desired",
         )  # fmt: skip
         rate = figures.log_rate(next(iter(logs.values())))

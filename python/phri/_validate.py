@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -134,3 +134,13 @@ class Reader:
         if not isinstance(v, dict):
             raise self.fail(key, f"a table, e.g. [{self.prefix}{key}]", v)
         return Reader(self.source, v, f"{self.prefix}{key}.", allowed)
+
+
+def decode_utf8(raw: bytes, error: Callable[[int, int, bytes], Exception]) -> str:
+    """`raw` as UTF-8 text without its byte-order mark (some editors and Excel write one), with
+    universal newlines; bytes that are not UTF-8 raise ``error(line, offset, bad_bytes)``."""
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise error(raw[: e.start].count(b"\n") + 1, e.start, raw[e.start : e.end]) from None
+    return text.replace("\r\n", "\n").replace("\r", "\n")

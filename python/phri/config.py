@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from phri._phri import FEATURE_NAMES, FEATURE_PARAMETERS, Features, Robot, Scene, SceneObject
-from phri._validate import Reader, did_you_mean, is_integer
+from phri._validate import Reader, decode_utf8, did_you_mean, is_integer
 from phri.exceptions import ConfigError, PhriError, UnknownNameError
 
 if sys.version_info >= (3, 11):
@@ -303,17 +303,12 @@ def _parse(data: dict[str, Any], source: str) -> Task:
 
 def _read_text(source: str, file: Any) -> str:
     """The text of a task file (a Path or a package resource); not UTF-8 is a ConfigError."""
-    raw = file.read_bytes()
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        line = raw[: e.start].count(b"\n") + 1
-        raise ConfigError(
-            f"{source}: not UTF-8 text (line {line}, byte {e.start}: {raw[e.start : e.end]!r}); "
-            "save the task file as UTF-8"
-        ) from None
-    text = text.removeprefix("\ufeff")  # the byte-order mark some editors write
-    return text.replace("\r\n", "\n").replace("\r", "\n")  # universal newlines, as read_text
+    return decode_utf8(
+        file.read_bytes(),
+        lambda line, offset, bad: ConfigError(
+            f"{source}: not UTF-8 text (line {line}, byte {offset}: {bad!r}); save the task file as UTF-8"
+        ),
+    )
 
 
 def load_task(name_or_path: str | Path) -> Task:

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from phri._extras import require
+from phri._validate import decode_utf8
 from phri.atomic import exclusive, write_atomic
 from phri.study import markdown
 from phri.study.errors import QuestionnaireError
@@ -239,15 +240,13 @@ def read_responses(path: str | Path) -> pd.DataFrame:
         data = path.read_bytes()
     except OSError as e:
         raise QuestionnaireError(f"{path}: cannot read the questionnaire file ({e.strerror})") from None
-    try:
-        # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark.
-        text = data.decode("utf-8-sig").replace("\r\n", "\n")
-    except UnicodeDecodeError as e:
-        line = data[: e.start].count(b"\n") + 1
-        raise QuestionnaireError(
-            f"{path}: line {line}: byte {data[e.start : e.end]!r} is not UTF-8 (a Latin-1 or Windows "
-            "file?); save the questionnaire as CSV UTF-8"
-        ) from None
+    text = decode_utf8(
+        data,
+        lambda line, _, bad: QuestionnaireError(
+            f"{path}: line {line}: byte {bad!r} is not UTF-8 (a Latin-1 or Windows file?); save the "
+            "questionnaire as CSV UTF-8"
+        ),
+    )
     reader = csv.DictReader(io.StringIO(text))
     missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
     if missing:

@@ -88,7 +88,7 @@ def _variant(tmp_path, old: str, new: str):
             r"key 'start' must be a list of 7 finite numbers",
         ),
         ("duration = 15.0", "duration = -1.0", r"key 'duration' must be a number > 0"),
-        ("waypoints = 31", "waypoints = 2", r"key 'waypoints' must be an integer >= 3"),
+        ("waypoints = 31", "waypoints = 2", r"key 'waypoints' must be an integer in 3..=10000"),
         ("[features.table]", "[features.tabel]", r"key 'features.tabel': unknown feature"),
         ("step = 2.0", "step = -2.0", r"key 'features.table.step' must be a number >= 0"),
         ("upper = 1.0", "upper = -1.0", r"key 'features.table.lower' must be <= upper"),
@@ -384,7 +384,7 @@ def test_scene_values_are_read_from_the_file(tmp_path, robot) -> None:
             "missing key 'features.human.keep_out'",
         ),
         ("samples = 4 ", "samples = 0 ", "key 'features.human.samples' must be an integer >= 1, got 0"),
-        ("samples = 4 ", "samples = 5000 ", "features[1].samples must be 1 to 1000 points per segment"),
+        ("samples = 4 ", "samples = 5000 ", "features[1].samples must be in 1..=1000 points per segment"),
         ("radius = 0.4 ", "radius = -0.4 ", "key 'features.human.radius' must be a number > 0, got -0.4"),
         (
             "radius = 0.4 ",

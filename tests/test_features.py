@@ -10,6 +10,8 @@ keep-out features are placed by SCENE as the study's task files place them.
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -444,3 +446,31 @@ def test_keep_out_circles_are_placed_by_their_scene_object(jaco2):
     }
     assert phri.Features(jaco2, ["efficiency", "table"]).keep_out_circles == {}
     assert task.keep_out_circle("laptop") == ((-0.7929, -0.1), 0.4)
+
+
+def test_phi_and_its_gradient_stream_in_constant_memory_per_waypoint() -> None:
+    """Issue 16 #4: Φ and ∂Φ/∂ξ kept every waypoint's kinematics (about 3.7 kB each, an abort at
+    10⁷ waypoints). Now the peak memory of a call is its input and output only."""
+    script = """
+import resource, numpy as np, phri
+robot = phri.Robot.jaco2()
+features = phri.Features(robot, ["efficiency", "table", "coffee"])
+xi = np.random.default_rng(0).uniform(-1, 1, (200_000, 7))
+features.phi(xi[:10]), features.phi_gradient(xi[:10])  # warm up the allocator and the workspace
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+phi = features.phi(xi)
+grown_phi = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+_, jac = features.phi_gradient(xi)
+grown_grad = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+assert np.isfinite(phi).all() and jac.shape == (3, 200_000, 7)
+print(grown_phi, grown_grad, jac.nbytes // 1024)
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=True
+    )
+    grown_phi, grown_grad, jac_kb = (int(v) for v in out.stdout.split())
+    # The old workspace alone took 3.7 kB × 200,000 = 740 MB.
+    assert grown_phi < 20_000, f"phi grew the peak by {grown_phi} kB"
+    assert grown_grad < jac_kb + 20_000, (
+        f"phi_gradient grew the peak by {grown_grad} kB for a {jac_kb} kB result"
+    )

@@ -1088,10 +1088,10 @@ def test_random_configurations_helper_respects_limits(robot: phri.Robot):
 )
 def test_inputs_that_are_not_numbers_are_a_type_error_naming_the_argument(robot: phri.Robot, bad) -> None:
     with pytest.raises(
-        TypeError, match=r"^argument 'q': expected numbers \(an array, a list or a number\), got "
+        TypeError, match=r"^argument 'q': expected real numbers \(an array, a list or a number\), got "
     ):
         robot.gravity(bad)
-    with pytest.raises(TypeError, match=r"^argument 'waypoints': expected numbers"):
+    with pytest.raises(TypeError, match=r"^argument 'waypoints': expected real numbers"):
         phri.TimedTrajectory(bad, 15.0)
 
 

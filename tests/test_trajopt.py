@@ -284,7 +284,7 @@ def test_warm_starts_through_the_coarse_levels() -> None:
         peers.phri_optimizer(problem, coarsening=0).solve_levels(
             problem.weights, problem.start, problem.goal, init=levels
         )
-    with pytest.raises(ex.InvalidParameterError, match="k must be below 2"):
+    with pytest.raises(ex.InvalidParameterError, match="k must be in 0..=1"):
         levels.level(2)
 
 
@@ -369,7 +369,7 @@ def test_speed_limits_come_from_the_duration_unless_given_or_turned_off(robot) -
         ({"duration": 15.0, "speed_fraction": 0.9}, r"speed_fraction must be in \(0, 0.66+\d*\]"),
         ({"duration": 15.0, "collision_weight": 0.0}, "collision_weight must be > 0"),
         ({"duration": 15.0, "collision_buffer": -1e-3}, "collision_buffer"),
-        ({"duration": 15.0, "collision_samples": 0}, "collision_samples must be 1..=64"),
+        ({"duration": 15.0, "collision_samples": 0}, "collision_samples must be in 1..=64"),
     ]
     for kwargs, message in cases:
         with pytest.raises(ex.InvalidParameterError, match=message):

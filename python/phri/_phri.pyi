@@ -396,6 +396,9 @@ class TrajectoryOptimizer:
     CLEARANCE_TOLERANCE: ClassVar[float]
     STEP_TOLERANCE: ClassVar[float]
     SELF_MARGIN: ClassVar[float]
+    MAX_WAYPOINTS: ClassVar[int]
+    MAX_ITERATIONS: ClassVar[int]
+    MAX_TIME: ClassVar[float]
     def __new__(
         cls,
         features: Features,

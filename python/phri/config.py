@@ -22,7 +22,15 @@ from typing import Any
 
 import numpy as np
 
-from phri._phri import FEATURE_NAMES, FEATURE_PARAMETERS, Features, Robot, Scene, SceneObject
+from phri._phri import (
+    FEATURE_NAMES,
+    FEATURE_PARAMETERS,
+    Features,
+    Robot,
+    Scene,
+    SceneObject,
+    TrajectoryOptimizer,
+)
 from phri._validate import Reader, decode_utf8, did_you_mean, is_integer
 from phri.exceptions import ConfigError, PhriError, UnknownNameError
 
@@ -169,8 +177,10 @@ _PARAMETER_READERS: dict[str, Any] = {
 }
 
 
-def _integer(r: Reader, key: str, minimum: int, default: Any = ...) -> int:
+def _integer(r: Reader, key: str, minimum: int, default: Any = ..., maximum: int | None = None) -> int:
     v = r.get(key, default)
+    if maximum is not None and (not is_integer(v) or not minimum <= v <= maximum):
+        raise r.fail(key, f"an integer in {minimum}..={maximum}", v)
     if not is_integer(v) or v < minimum:
         raise r.fail(key, f"an integer >= {minimum}", v)
     return v
@@ -262,7 +272,7 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     start, goal = r.vector("start", 7) * scale, r.vector("goal", 7) * scale
     _check_limits(r, "start", start, scale, angles)
     _check_limits(r, "goal", goal, scale, angles)
-    waypoints = _integer(r, "waypoints", 3, 31)
+    waypoints = _integer(r, "waypoints", 3, 31, maximum=TrajectoryOptimizer.MAX_WAYPOINTS)
     scene = _scene(r)
     feats = r.get("features")
     if not isinstance(feats, dict) or not feats:

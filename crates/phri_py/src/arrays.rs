@@ -2,15 +2,19 @@
 
 use std::borrow::Cow;
 
-use numpy::{AllowTypeChange, PyArrayLikeDyn, PyUntypedArrayMethods};
+use numpy::{AllowTypeChange, PyArrayDescrMethods, PyArrayLikeDyn, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::PyType;
 
 use crate::errors::{error, Kind};
 
-/// Any array-like of floats (lists, tuples, arrays of any numeric dtype). What numpy cannot read
-/// as numbers (strings, ragged lists, arbitrary objects) is a TypeError, which PyO3 prefixes with
-/// the argument's name ("argument 'q': expected numbers ...").
+/// Any array-like of real numbers (lists, tuples, arrays of an integer or floating dtype). What is
+/// not a real number is a TypeError, which PyO3 prefixes with the argument's name ("argument 'q':
+/// expected real numbers ..."): strings (also numeric ones), bools, complex numbers (their
+/// imaginary part would be lost), datetimes, structured and object arrays, ragged lists, and
+/// masked arrays (their mask would be lost).
 pub struct ArrayIn<'py>(PyArrayLikeDyn<'py, f64, AllowTypeChange>);
 
 impl<'py> std::ops::Deref for ArrayIn<'py> {
@@ -21,14 +25,44 @@ impl<'py> std::ops::Deref for ArrayIn<'py> {
     }
 }
 
+/// numpy's dtype kinds of real numbers: signed and unsigned integers, floating point.
+const REAL_KINDS: &[u8] = b"iuf";
+
+fn refused(what: impl std::fmt::Display) -> PyErr {
+    PyTypeError::new_err(format!("expected real numbers (an array, a list or a number), got {what}"))
+}
+
 impl<'a, 'py> FromPyObject<'a, 'py> for ArrayIn<'py> {
     type Error = PyErr;
 
     fn extract(ob: Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
-        PyArrayLikeDyn::extract(ob).map(ArrayIn).map_err(|e| {
-            let kind = ob.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "object".into());
-            PyTypeError::new_err(format!("expected numbers (an array, a list or a number), got {kind}: {e}"))
-        })
+        static ASARRAY: PyOnceLock<Py<PyAny>> = PyOnceLock::new();
+        static MASKED: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+        let py = ob.py();
+        let kind = || {
+            let name = ob.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "object".into());
+            let article = if name.starts_with(['a', 'e', 'i', 'o', 'u']) { "an" } else { "a" };
+            format!("{article} {name}")
+        };
+        // An array keeps its dtype; anything else is read by numpy first, so that its dtype can be
+        // checked before it is taken as floats (numpy would read "1.5" and True as numbers).
+        let array = match ob.cast::<PyUntypedArray>() {
+            Ok(a) => {
+                if !a.is_exact_instance_of::<PyUntypedArray>()
+                    && a.is_instance(MASKED.import(py, "numpy.ma", "MaskedArray")?)?
+                {
+                    return Err(refused("a masked array (pass a.filled(value) or a.compressed())"));
+                }
+                a.to_owned().into_any()
+            }
+            Err(_) => ASARRAY.import(py, "numpy", "asarray")?.call1((ob,)).map_err(|e| refused(format!("{}: {e}", kind())))?,
+        };
+        let dtype = array.cast::<PyUntypedArray>()?.dtype();
+        if !REAL_KINDS.contains(&dtype.kind()) {
+            let what = if ob.is_instance_of::<PyUntypedArray>() { "an array".to_string() } else { kind() };
+            return Err(refused(format!("{what} of dtype {dtype}")));
+        }
+        PyArrayLikeDyn::extract(array.as_borrowed()).map(ArrayIn).map_err(|e| refused(format!("{}: {e}", kind())))
     }
 }
 
@@ -120,4 +154,20 @@ pub fn same_batch(args: &[(&str, &Rows)]) -> PyResult<Option<usize>> {
         }
     }
     Ok(first)
+}
+
+/// A zeroed output of `len` values for input `arg`, or an InvalidParameterError saying how large
+/// it would be when the memory cannot be had (`vec!` would abort the interpreter instead).
+pub fn zeros(arg: &str, len: usize) -> PyResult<Vec<f64>> {
+    let too_large = || {
+        let gigabytes = len as f64 * std::mem::size_of::<f64>() as f64 / 1e9;
+        error(
+            Kind::InvalidParameter,
+            format!("{arg} is too large: its result would take {gigabytes:.1} GB, which cannot be allocated"),
+        )
+    };
+    let mut v = Vec::new();
+    v.try_reserve_exact(len).map_err(|_| too_large())?;
+    v.resize(len, 0.0);
+    Ok(v)
 }

@@ -1,11 +1,12 @@
 //! `phri.Deformation`: the intended trajectory of a push, ξ_H = ξ_R + μ·A⁻¹·U_H (paper eq. 7).
 
 use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
-use phri_core::deform::{DeformParams, Deformation, EndRule, Norm};
+use phri_core::deform::{DeformParams, Deformation, EndRule, Norm, MAX_WINDOW};
 use pyo3::prelude::*;
 
 use crate::arrays::{matrix, shape_str, vector, ArrayIn};
 use crate::errors::{error, IntoPy, Kind};
+use crate::ints::{bounded, int};
 
 const NORMS: [(&str, Norm); 2] = [("acceleration", Norm::Acceleration), ("jerk", Norm::Jerk)];
 const END_RULES: [(&str, EndRule); 2] = [("skip", EndRule::Skip), ("shrink", EndRule::Shrink)];
@@ -22,9 +23,9 @@ fn name_of<T: Copy + PartialEq>(table: &[(&'static str, T)], value: T) -> &'stat
     table.iter().find(|(_, v)| *v == value).map_or("?", |(n, _)| n)
 }
 
-/// A Python int as a waypoint count or index (negative → InvalidParameterError).
-fn non_negative(arg: &str, value: i64) -> PyResult<usize> {
-    usize::try_from(value).map_err(|_| error(Kind::InvalidParameter, format!("{arg} must be ≥ 0, got {value}")))
+/// A Python int as a waypoint count or index.
+fn non_negative(arg: &str, value: i128) -> PyResult<usize> {
+    bounded(arg, value, 0..=usize::MAX, "")
 }
 
 /// ξ_H = ξ_R + μ·A⁻¹·U_H: a push u_H [N·m] at waypoint `index` moves the next `window` waypoints,
@@ -45,11 +46,9 @@ pub struct PyDeformation {
 impl PyDeformation {
     #[new]
     #[pyo3(signature = (*, window = 5, mu = 0.01, norm = "acceleration", end_rule = "skip"))]
-    fn new(window: i64, mu: f64, norm: &str, end_rule: &str) -> PyResult<Self> {
+    fn new(#[pyo3(from_py_with = int)] window: i128, mu: f64, norm: &str, end_rule: &str) -> PyResult<Self> {
         let params = DeformParams {
-            // Negative: the core's own message, with the value given.
-            window: usize::try_from(window)
-                .map_err(|_| error(Kind::InvalidParameter, format!("window must be ≥ 1, got {window}")))?,
+            window: bounded("window", window, 1..=MAX_WINDOW, "waypoints")?,
             mu,
             norm: lookup("norm", &NORMS, norm)?,
             end_rule: lookup("end_rule", &END_RULES, end_rule)?,
@@ -63,7 +62,7 @@ impl PyDeformation {
         &self,
         py: Python<'py>,
         trajectory: ArrayIn<'py>,
-        index: i64,
+        #[pyo3(from_py_with = int)] index: i128,
         u_h: ArrayIn<'py>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let dof = match trajectory.shape() {
@@ -78,7 +77,11 @@ impl PyDeformation {
     }
 
     /// How many waypoints a push at `index` of an `n_waypoints` trajectory moves (0: none).
-    fn window_at(&self, index: i64, n_waypoints: i64) -> PyResult<usize> {
+    fn window_at(
+        &self,
+        #[pyo3(from_py_with = int)] index: i128,
+        #[pyo3(from_py_with = int)] n_waypoints: i128,
+    ) -> PyResult<usize> {
         let n_waypoints = non_negative("n_waypoints", n_waypoints)?;
         self.deformation.window_at(non_negative("index", index)?, n_waypoints).py_err()
     }

@@ -2,14 +2,15 @@
 
 use numpy::{PyArray1, PyArrayDyn, PyArrayMethods};
 use phri_core::features::{
-    feature_parameters, FeatureParams, FeatureSet, FeatureSpec, KeepoutSpec, BUILTIN_FEATURES, DEFAULT_SAMPLES,
+    feature_parameters, FeatureParams, FeatureSet, FeatureSpec, KeepoutSpec, BUILTIN_FEATURES, DEFAULT_SAMPLES, MAX_SAMPLES,
 };
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyMapping, PyString, PyTuple};
 
-use crate::arrays::{matrix, vector, ArrayIn};
+use crate::arrays::{matrix, vector, zeros, ArrayIn};
 use crate::errors::{error, IntoPy, Kind};
+use crate::ints::{bounded, int};
 use crate::robot::PyRobot;
 use crate::scene::PyScene;
 
@@ -119,10 +120,8 @@ fn keepout_params(arg: &str, name: &str, given: &Given<'_>) -> PyResult<KeepoutS
     };
     let samples = match given.get("samples") {
         Some(v) => {
-            let n: i64 = v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}.samples must be an integer")))?;
-            usize::try_from(n).map_err(|_| {
-                error(Kind::InvalidParameter, format!("{arg}.samples must be at least 1 point per segment, got {n}"))
-            })?
+            let n = int(v).map_err(|_| PyTypeError::new_err(format!("{arg}.samples must be an integer")))?;
+            bounded(&format!("{arg}.samples"), n, 1..=MAX_SAMPLES, "points per segment")?
         }
         None => DEFAULT_SAMPLES,
     };
@@ -235,13 +234,11 @@ impl PyFeatures {
         &self,
         py: Python<'py>,
         weights: ArrayIn<'py>,
-        from_waypoints: i64,
-        to_waypoints: i64,
+        #[pyo3(from_py_with = int)] from_waypoints: i128,
+        #[pyo3(from_py_with = int)] to_waypoints: i128,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let count = |arg: &str, n: i64| {
-            usize::try_from(n).map_err(|_| error(Kind::InvalidParameter, format!("{arg} must be >= 2, got {n}")))
-        };
-        let (from, to) = (count("from_waypoints", from_waypoints)?, count("to_waypoints", to_waypoints)?);
+        let from = bounded("from_waypoints", from_waypoints, 2..=usize::MAX, "waypoints")?;
+        let to = bounded("to_waypoints", to_waypoints, 2..=usize::MAX, "waypoints")?;
         let weights = vector("weights", &weights, self.set.len())?;
         Ok(PyArray1::from_vec(py, self.set.rescale_weights(&weights, from, to).py_err()?))
     }
@@ -268,7 +265,8 @@ impl PyFeatures {
     ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
         let (xi, waypoints) = self.trajectory("xi", &xi)?;
         let k = self.set.len();
-        let (mut phi, mut jac) = (vec![0.0; k], vec![0.0; k * xi.len()]);
+        let len = k.checked_mul(xi.len()).ok_or_else(|| error(Kind::InvalidParameter, "xi is too large"))?;
+        let (mut phi, mut jac) = (vec![0.0; k], zeros("xi", len)?);
         self.set.phi_gradient(&xi, &mut phi, &mut jac).py_err()?;
         Ok((PyArray1::from_vec(py, phi), output(py, jac, &[k, waypoints, self.n])?))
     }
@@ -277,7 +275,7 @@ impl PyFeatures {
     fn per_segment<'py>(&mut self, py: Python<'py>, xi: ArrayIn<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let (xi, waypoints) = self.trajectory("xi", &xi)?;
         let k = self.set.len();
-        let mut out = vec![0.0; (waypoints - 1) * k];
+        let mut out = zeros("xi", (waypoints - 1) * k)?;
         self.set.per_segment(&xi, &mut out).py_err()?;
         output(py, out, &[waypoints - 1, k])
     }

@@ -9,6 +9,7 @@ mod errors;
 mod features;
 mod impedance;
 mod interaction;
+mod ints;
 mod learner;
 mod reference;
 mod robot;

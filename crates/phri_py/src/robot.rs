@@ -9,7 +9,7 @@ use phri_core::collision::Sphere;
 use phri_core::{FrameId, PhriError, RobotData, RobotModel};
 use pyo3::prelude::*;
 
-use crate::arrays::{matrix, rows, same_batch, vector, ArrayIn, Rows};
+use crate::arrays::{matrix, rows, same_batch, vector, zeros, ArrayIn, Rows};
 use crate::errors::{error, IntoPy, Kind};
 use crate::scene::PyScene;
 
@@ -88,7 +88,8 @@ impl PyRobot {
         let batch = same_batch(inputs)?;
         let width: usize = shape.iter().product();
         let count = batch.unwrap_or(1);
-        let mut out = vec![0.0; count * width];
+        let len = count.checked_mul(width).ok_or_else(|| error(Kind::InvalidParameter, "the batch is too large"))?;
+        let mut out = zeros(inputs[0].0, len)?;
         let mut row_inputs: Vec<&[f64]> = Vec::with_capacity(inputs.len());
         for (k, chunk) in out.chunks_exact_mut(width).enumerate() {
             row_inputs.clear();

@@ -8,7 +8,8 @@ use phri_core::collision::{CollisionChecker, SELF_MARGIN};
 use phri_core::features::FeatureSet;
 use phri_core::trajopt::{
     Clearance, CollisionParams, KinematicCurvature, PlanLevels, TrajectoryOptimizer, TrajoptInfo, TrajoptParams,
-    CLEARANCE_TOLERANCE, DEFAULT_COLLISION_BUFFER, DEFAULT_COLLISION_SAMPLES, DEFAULT_COLLISION_WEIGHT, STEP_TOLERANCE,
+    CLEARANCE_TOLERANCE, DEFAULT_COLLISION_BUFFER, DEFAULT_COLLISION_SAMPLES, DEFAULT_COLLISION_WEIGHT, MAX_COLLISION_SAMPLES,
+    MAX_ITERATIONS, MAX_TIME, MAX_WAYPOINTS, STEP_TOLERANCE,
 };
 
 // The signature spells the core's defaults out (so that Python's help shows numbers): they must agree.
@@ -19,6 +20,7 @@ use pyo3::prelude::*;
 use crate::arrays::{matrix, vector, ArrayIn};
 use crate::errors::{error, to_py, IntoPy, Kind};
 use crate::features::PyFeatures;
+use crate::ints::{bounded, int};
 
 /// What a solve did (the core's `TrajoptInfo`, read-only).
 #[pyclass(name = "TrajoptInfo", module = "phri._phri", frozen)]
@@ -256,7 +258,7 @@ impl PyTrajectoryOptimizer {
     #[allow(clippy::too_many_arguments)]
     fn new(
         features: PyRef<'_, PyFeatures>,
-        waypoints: usize,
+        #[pyo3(from_py_with = int)] waypoints: i128,
         duration: Option<f64>,
         speed_fraction: f64,
         speed_limits: bool,
@@ -264,10 +266,10 @@ impl PyTrajectoryOptimizer {
         self_collision: bool,
         collision_weight: f64,
         collision_buffer: f64,
-        collision_samples: usize,
+        #[pyo3(from_py_with = int)] collision_samples: i128,
         clearance: Option<Vec<(String, f64)>>,
         clearance_weight: f64,
-        max_iterations: usize,
+        #[pyo3(from_py_with = int)] max_iterations: i128,
         max_time: Option<f64>,
         gradient_tolerance: f64,
         relative_tolerance: f64,
@@ -275,9 +277,14 @@ impl PyTrajectoryOptimizer {
         max_step: Option<ArrayIn<'_>>,
         step_weight: f64,
         kinematic_curvature: &str,
-        coarsening: usize,
-        coarsest: usize,
+        #[pyo3(from_py_with = int)] coarsening: i128,
+        #[pyo3(from_py_with = int)] coarsest: i128,
     ) -> PyResult<Self> {
+        let waypoints = bounded("waypoints", waypoints, 3..=MAX_WAYPOINTS, "(start, at least one free waypoint, goal)")?;
+        let max_iterations = bounded("max_iterations", max_iterations, 1..=MAX_ITERATIONS, "Newton iterations")?;
+        let coarsening = bounded("coarsening", coarsening, 0..=MAX_WAYPOINTS, "(segments per coarse segment; 0 or 1 for none)")?;
+        let coarsest = bounded("coarsest", coarsest, 3..=MAX_WAYPOINTS, "waypoints")?;
+        let collision_samples = bounded("collision_samples", collision_samples, 1..=MAX_COLLISION_SAMPLES, "points per segment")?;
         let set = features.set.clone();
         let model = set.model().clone();
         let clearance = clearance
@@ -287,8 +294,8 @@ impl PyTrajectoryOptimizer {
             .collect::<PyResult<Vec<_>>>()?;
         let max_time = match max_time {
             None => None,
-            Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
-            Some(s) => return Err(error(Kind::InvalidParameter, format!("max_time must be a finite time > 0 s, got {s}"))),
+            Some(s) if s > 0.0 && s <= MAX_TIME => Some(Duration::from_secs_f64(s)),
+            Some(s) => return Err(error(Kind::InvalidParameter, format!("max_time must be in (0, {MAX_TIME}] s, got {s}"))),
         };
         let max_step = step_limits(&model, waypoints, max_step.as_ref(), duration, speed_fraction, speed_limits)?;
         let kinematic_curvature = match kinematic_curvature {
@@ -331,6 +338,18 @@ impl PyTrajectoryOptimizer {
     /// than this fraction [1].
     #[classattr]
     const STEP_TOLERANCE: f64 = STEP_TOLERANCE;
+
+    /// Most `waypoints` of a plan: what a plan costs in memory and time grows with them.
+    #[classattr]
+    const MAX_WAYPOINTS: usize = MAX_WAYPOINTS;
+
+    /// Most `max_iterations` (Newton iterations per level).
+    #[classattr]
+    const MAX_ITERATIONS: usize = MAX_ITERATIONS;
+
+    /// Longest `max_time` [s].
+    #[classattr]
+    const MAX_TIME: f64 = MAX_TIME;
 
     /// Clearance kept between two collision bodies of the robot with `self_collision` [m].
     #[classattr]
@@ -467,10 +486,8 @@ impl PyPlanLevels {
     }
 
     /// Level `k` (waypoints, n) [rad]: 0 is the plan, then ever coarser.
-    fn level<'py>(&self, py: Python<'py>, k: usize) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        if k >= self.levels.len() {
-            return Err(error(Kind::InvalidParameter, format!("k must be below {}, got {k}", self.levels.len())));
-        }
+    fn level<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = int)] k: i128) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let k = bounded("k", k, 0..=self.levels.len().saturating_sub(1), "(0 is the plan, then ever coarser levels)")?;
         let level = self.levels.level(k).to_vec();
         let rows = level.len() / self.n;
         PyArray1::from_vec(py, level).reshape([rows, self.n])

@@ -115,7 +115,7 @@ impl FeatureSpec {
                 if k.samples == 0 || k.samples > MAX_SAMPLES {
                     return Err(PhriError::invalid(
                         &format!("{arg}.samples"),
-                        format!("must be 1 to {MAX_SAMPLES} points per segment, got {}", k.samples),
+                        format!("must be in 1..={MAX_SAMPLES} points per segment, got {}", k.samples),
                     ));
                 }
                 Ok(())

@@ -228,7 +228,7 @@ impl FeatureSet {
         let waypoints = self.check_trajectory("trajectory", trajectory)?;
         self.check_out("phi", phi.len(), self.len())?;
         phi.fill(0.0);
-        self.ws.begin(waypoints);
+        self.ws.begin_streaming();
         for i in 1..waypoints {
             let mut seg = self.ws.segment(trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
@@ -243,7 +243,7 @@ impl FeatureSet {
         let waypoints = self.check_trajectory("trajectory", trajectory)?;
         let k_len = self.len();
         self.check_out("out", out.len(), (waypoints - 1) * k_len)?;
-        self.ws.begin(waypoints);
+        self.ws.begin_streaming();
         for i in 1..waypoints {
             let mut seg = self.ws.segment(trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
@@ -262,7 +262,7 @@ impl FeatureSet {
         self.check_out("jac", jac.len(), k_len * waypoints * n)?;
         phi.fill(0.0);
         jac.fill(0.0);
-        self.ws.begin(waypoints);
+        self.ws.begin_streaming();
         for i in 1..waypoints {
             let mut seg = self.ws.segment(trajectory, i, 0.0);
             for (k, f) in self.features.iter().enumerate() {
@@ -288,7 +288,8 @@ impl FeatureSet {
         self.check_out("weights", weights.len(), self.len())?;
         check_finite("weights", weights)?;
         self.check_out("grad", grad.len(), trajectory.len())?;
-        Ok(self.weighted_cost_unchecked(trajectory, waypoints, weights, Some(grad), None, 0.0))
+        self.ws.begin_streaming();
+        Ok(self.weighted_cost_evaluation(trajectory, waypoints, weights, Some(grad), None, 0.0))
     }
 
     /// The weighted cost c = Σ_k w_k Φ_k(ξ) with the kinked features smoothed by `smoothing` (see
@@ -332,6 +333,19 @@ impl FeatureSet {
         smoothing: f64,
     ) -> f64 {
         self.ws.begin(waypoints);
+        self.weighted_cost_evaluation(trajectory, waypoints, weights, grad, second_order, smoothing)
+    }
+
+    /// [`FeatureSet::weighted_cost_unchecked`] after the workspace's `begin` (kept or streaming).
+    fn weighted_cost_evaluation(
+        &mut self,
+        trajectory: &[f64],
+        waypoints: usize,
+        weights: &[f64],
+        grad: Option<&mut [f64]>,
+        second_order: Option<SecondOrder<'_>>,
+        smoothing: f64,
+    ) -> f64 {
         let Some(grad) = grad else {
             let mut cost = 0.0;
             for i in 1..waypoints {

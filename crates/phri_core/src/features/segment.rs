@@ -52,6 +52,8 @@ pub(super) struct WaypointKin {
     jacobian: Matrix6xX<f64>,
     epoch: u64,
     jacobian_epoch: u64,
+    /// The waypoint whose kinematics these are (a slot holds many waypoints when streaming).
+    index: usize,
 }
 
 /// Per-segment kinematics cache, shared by all features of a [`FeatureSet`].
@@ -78,7 +80,10 @@ pub(super) struct Workspace {
     reach: Option<Vec<f64>>,
     /// Evaluation counter: waypoint kinematics carrying an older epoch are stale.
     epoch: u64,
+    /// Per waypoint its kinematics; when `streaming`, two slots that waypoint i shares with i ± 2
+    /// (a segment reads only its two ends), so that memory does not grow with the trajectory.
     waypoints: Vec<WaypointKin>,
+    streaming: bool,
     /// Intermediate samples of the current segment.
     data: RobotData,
     /// Configuration whose forward kinematics is in `data` (as a sample parameter s).
@@ -99,6 +104,7 @@ impl Workspace {
             frame,
             epoch: 0,
             waypoints: Vec::new(),
+            streaming: false,
             data_s: None,
             q_s: vec![0.0; nq],
             samples: Vec::with_capacity(8),
@@ -128,7 +134,7 @@ impl Workspace {
             for ((out, a), b) in self.q_s.iter_mut().zip(q_prev).zip(q) {
                 *out = a + s * (b - a);
             }
-            let (base, q_s) = (&self.waypoints[i - 1].sin_cos, &self.q_s);
+            let (base, q_s) = (&self.waypoints[self.slot(i - 1)].sin_cos, &self.q_s);
             let sin_cos = |j: usize| {
                 let d = q_s[j] - q_prev[j];
                 if d.abs() > SMALL_ANGLE {
@@ -143,8 +149,31 @@ impl Workspace {
         }
     }
 
-    /// Starts an evaluation of a trajectory of `waypoints` rows: all cached kinematics go stale.
+    /// Starts an evaluation of a trajectory of `waypoints` rows that keeps every waypoint's
+    /// kinematics until the next (see `FeatureSet::waypoint_data`): all cached kinematics go stale.
     pub(super) fn begin(&mut self, waypoints: usize) {
+        self.streaming = false;
+        self.reserve(waypoints);
+    }
+
+    /// Starts an evaluation that visits the segments in order and keeps only the kinematics of
+    /// the current segment's two ends: constant memory whatever the trajectory's length.
+    pub(super) fn begin_streaming(&mut self) {
+        self.streaming = true;
+        self.reserve(2);
+    }
+
+    /// The slot of waypoint `i`'s kinematics.
+    #[inline]
+    fn slot(&self, i: usize) -> usize {
+        if self.streaming {
+            i % 2
+        } else {
+            i
+        }
+    }
+
+    fn reserve(&mut self, waypoints: usize) {
         self.epoch += 1;
         if self.waypoints.len() < waypoints {
             let nq = self.model.nq();
@@ -155,6 +184,7 @@ impl Workspace {
                 jacobian: Matrix6xX::zeros(nq),
                 epoch: 0,
                 jacobian_epoch: 0,
+                index: 0,
             };
             self.waypoints.resize(waypoints, blank);
         }
@@ -162,8 +192,11 @@ impl Workspace {
 
     /// Forward kinematics of waypoint `i` at `q`, computed once per evaluation.
     pub(super) fn waypoint(&mut self, i: usize, q: &[f64]) -> &mut WaypointKin {
-        let w = &mut self.waypoints[i];
-        if w.epoch != self.epoch {
+        let slot = self.slot(i);
+        let w = &mut self.waypoints[slot];
+        if w.epoch != self.epoch || w.index != i {
+            w.index = i;
+            w.jacobian_epoch = 0;
             for (sc, v) in w.sin_cos.iter_mut().zip(q) {
                 *sc = v.sin_cos();
             }
@@ -179,12 +212,13 @@ impl Workspace {
     fn waypoint_jacobian(&mut self, i: usize, q: &[f64]) -> &Matrix6xX<f64> {
         let epoch = self.epoch;
         self.waypoint(i, q);
-        let w = &mut self.waypoints[i];
+        let slot = self.slot(i);
+        let w = &mut self.waypoints[slot];
         if w.jacobian_epoch != epoch {
             self.model.frame_jacobian_unchecked(self.frame, &w.data, &mut w.jacobian);
             w.jacobian_epoch = epoch;
         }
-        &self.waypoints[i].jacobian
+        &self.waypoints[slot].jacobian
     }
 }
 

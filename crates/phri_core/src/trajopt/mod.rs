@@ -48,7 +48,8 @@ use levels::{Coarse, LevelsOut, Start};
 use newton::{NewtonWorkspace, SolverState};
 pub use params::{
     Clearance, CollisionParams, KinematicCurvature, TrajoptInfo, TrajoptParams, CLEARANCE_TOLERANCE, DEFAULT_COLLISION_BUFFER,
-    DEFAULT_COLLISION_SAMPLES, DEFAULT_COLLISION_WEIGHT, STEP_TOLERANCE,
+    DEFAULT_COLLISION_SAMPLES, DEFAULT_COLLISION_WEIGHT, MAX_COLLISION_SAMPLES, MAX_ITERATIONS, MAX_TIME, MAX_WAYPOINTS,
+    STEP_TOLERANCE,
 };
 
 /// A reusable optimiser for trajectories of `waypoints` × `dof` (workspaces sized once).
@@ -89,8 +90,11 @@ impl TrajectoryOptimizer {
     pub fn new(features: &FeatureSet, waypoints: usize, params: TrajoptParams) -> Result<Self> {
         let model = features.model();
         let dof = model.nq();
-        if waypoints < 3 {
-            return Err(PhriError::invalid("waypoints", format!("must be at least 3 (start, one free, goal), got {waypoints}")));
+        if !(3..=MAX_WAYPOINTS).contains(&waypoints) {
+            return Err(PhriError::invalid(
+                "waypoints",
+                format!("must be in 3..={MAX_WAYPOINTS} (start, at least one free waypoint, goal; see MAX_WAYPOINTS), got {waypoints}"),
+            ));
         }
         params.check(model)?;
         if let Some(c) = &params.collision {
@@ -126,8 +130,11 @@ impl TrajectoryOptimizer {
 
     /// Sets the iteration cap of later solves (e.g. a per-tick budget; see `LearnerParams`).
     pub fn set_max_iterations(&mut self, cap: usize) -> Result<()> {
-        if cap == 0 {
-            return Err(PhriError::invalid("max_iterations", "must be at least 1"));
+        if !(1..=MAX_ITERATIONS).contains(&cap) {
+            return Err(PhriError::invalid(
+                "max_iterations",
+                format!("must be in 1..={MAX_ITERATIONS} Newton iterations, got {cap}"),
+            ));
         }
         self.params.max_iterations = cap;
         if let Some(c) = self.coarse.as_mut() {

@@ -48,6 +48,9 @@ pub const DEFAULT_COLLISION_BUFFER: f64 = 6e-3;
 pub const DEFAULT_COLLISION_BAND: f64 = 0.05;
 /// Default [`CollisionParams::samples`] [points per segment].
 pub const DEFAULT_COLLISION_SAMPLES: usize = 4;
+/// Most [`CollisionParams::samples`] [points per segment]: each costs a distance query per sphere
+/// pair per segment and Newton iteration.
+pub const MAX_COLLISION_SAMPLES: usize = 64;
 
 impl CollisionParams {
     /// The defaults for `checker`.
@@ -78,15 +81,29 @@ impl CollisionParams {
                 format!("must be at most the band ({} m) and {} m, got {}", self.band, crate::collision::SELF_BAND, self.buffer),
             ));
         }
-        if !(1..=64).contains(&self.samples) {
+        if !(1..=MAX_COLLISION_SAMPLES).contains(&self.samples) {
             return Err(PhriError::invalid(
                 "collision_samples",
-                format!("must be 1..=64 points per segment, got {}", self.samples),
+                format!("must be in 1..={MAX_COLLISION_SAMPLES} points per segment, got {}", self.samples),
             ));
         }
         Ok(())
     }
 }
+
+/// Most waypoints of a plan [count]. What a plan costs grows with N: about 10 kB of workspace per
+/// waypoint for 7 joints (100 MB at the limit), and a Newton iteration more than linearly (measured
+/// on the shared 2-core machine, efficiency and table, speed limits on: 0.08 s per iteration at
+/// N = 1000, 1.7 s at 4000, 20 s at 10⁴, where a cold solve takes minutes; `max_time` caps it).
+/// 10⁴ waypoints are 10 s at 1 kHz; the paper plans 31.
+pub const MAX_WAYPOINTS: usize = 10_000;
+
+/// Most Newton iterations of a solve per level [count] (`max_iterations`; the default is 500, and
+/// the study's plans converge within about 150).
+pub const MAX_ITERATIONS: usize = 100_000;
+
+/// Longest wall-time cap `max_time` of a solve [s] (a day).
+pub const MAX_TIME: f64 = 86_400.0;
 
 /// A plan is feasible when no margin is violated by more than this along its executed curve [m].
 pub const CLEARANCE_TOLERANCE: f64 = 1e-3;
@@ -176,8 +193,16 @@ impl Default for TrajoptParams {
 impl TrajoptParams {
     /// Checks the parameters for `model`, naming the offending one.
     pub(super) fn check(&self, model: &RobotModel) -> Result<()> {
-        if self.max_iterations == 0 {
-            return Err(PhriError::invalid("max_iterations", "must be at least 1"));
+        if !(1..=MAX_ITERATIONS).contains(&self.max_iterations) {
+            return Err(PhriError::invalid(
+                "max_iterations",
+                format!("must be in 1..={MAX_ITERATIONS} Newton iterations, got {}", self.max_iterations),
+            ));
+        }
+        if let Some(t) = self.max_time {
+            if t.is_zero() || t.as_secs_f64() > MAX_TIME {
+                return Err(PhriError::invalid("max_time", format!("must be in (0, {MAX_TIME}] s, got {} s", t.as_secs_f64())));
+            }
         }
         if !(self.smoothing >= 0.0 && self.smoothing.is_finite()) {
             return Err(PhriError::invalid("smoothing", format!("must be finite and >= 0, got {}", self.smoothing)));
@@ -196,8 +221,17 @@ impl TrajoptParams {
         if let Some(c) = &self.collision {
             c.check()?;
         }
-        if self.coarsest < 3 {
-            return Err(PhriError::invalid("coarsest", format!("must be at least 3 waypoints, got {}", self.coarsest)));
+        if !(3..=MAX_WAYPOINTS).contains(&self.coarsest) {
+            return Err(PhriError::invalid(
+                "coarsest",
+                format!("must be in 3..={MAX_WAYPOINTS} waypoints, got {}", self.coarsest),
+            ));
+        }
+        if self.coarsening > MAX_WAYPOINTS {
+            return Err(PhriError::invalid(
+                "coarsening",
+                format!("must be in 0..={MAX_WAYPOINTS} (segments per coarse segment; 0 or 1 for none), got {}", self.coarsening),
+            ));
         }
         if !self.max_step.is_empty() {
             check_vector("max_step", &self.max_step, model.nq())?;

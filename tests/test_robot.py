@@ -1163,3 +1163,61 @@ def test_bad_carried_tables_name_the_file_and_key(tmp_path: Path, carried, extra
     path = _description(tmp_path, carried, extra)
     with pytest.raises(error, match="^" + re.escape(f"{path}: ") + ".*" + re.escape(message)):
         phri.Robot.from_description(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# what a URDF may cost (issue 16 #14)
+
+
+def test_a_fifo_or_folder_is_refused_at_once_not_read(tmp_path: Path) -> None:
+    import os
+    import threading
+
+    fifo = tmp_path / "robot.urdf"
+    os.mkfifo(fifo)
+    result: list[BaseException | None] = []
+
+    def load() -> None:
+        try:
+            phri.Robot.from_urdf(fifo)
+            result.append(None)
+        except BaseException as e:  # noqa: BLE001 - handed to the test thread
+            result.append(e)
+
+    thread = threading.Thread(target=load, daemon=True)
+    thread.start()
+    thread.join(10)
+    if thread.is_alive():  # the old reader blocked here for ever; unblock it before failing
+        with open(fifo, "w"):
+            pass
+        pytest.fail("Robot.from_urdf blocked on a FIFO")
+    assert isinstance(result[0], ex.UrdfError)
+    assert "not a regular file (a FIFO, socket or device)" in str(result[0])
+    with pytest.raises(ex.UrdfError, match=r"^path: cannot read .*it is a folder"):
+        phri.Robot.from_urdf(tmp_path)
+    robot = phri.Robot.jaco2()
+    with pytest.raises(ex.UrdfError, match="not a regular file"):
+        robot.with_attached_urdf("cup", "j2s7s300_link_7", fifo)
+
+
+@pytest.mark.parametrize("depth", [65, 16_000, 200_000])
+def test_deeply_nested_xml_is_refused_in_linear_time(depth: int, tmp_path: Path) -> None:
+    """urdf-rs took quadratic time in the depth and overflowed its stack (a segfault) at ~16,000."""
+    doc = '<robot name="r"><link name="a"/>' + "<x>" * depth + "</x>" * depth + "</robot>"
+    nested = r"^urdf: not a valid URDF document \(elements nested more than 64 deep"
+    with pytest.raises(ex.UrdfError, match=nested):
+        phri.Robot.from_urdf_string(doc)
+    path = tmp_path / "deep.urdf"
+    path.write_text(doc)
+    with pytest.raises(ex.UrdfError, match=rf"^path: '{re.escape(str(path))}': .*nested more than 64 deep"):
+        phri.Robot.jaco2().with_attached_urdf("cup", "j2s7s300_link_7", path)
+
+
+def test_a_robot_description_larger_than_the_limit_is_refused(tmp_path: Path) -> None:
+    big = tmp_path / "big.urdf"
+    with open(big, "wb") as f:
+        f.write(b'<robot name="r"><link name="a"/>')
+        f.write(b" " * (32 << 20))
+        f.write(b"</robot>")
+    with pytest.raises(ex.UrdfError, match=r"larger than a robot description may be \(33554432 bytes\)"):
+        phri.Robot.from_urdf(big)

@@ -250,13 +250,69 @@ fn check_joint(j: &urdf_rs::Joint) -> Result<()> {
     Ok(())
 }
 
+/// Largest robot description read [bytes] (32 MiB; the shipped JACO2's is 20 kB, and meshes are
+/// separate files).
+pub const MAX_URDF_BYTES: usize = 32 << 20;
+
+/// Deepest nesting of XML elements in a robot description [levels]. A URDF nests about 5 deep
+/// (robot, link, collision, geometry, box) and extensions a few more; urdf-rs's parser takes time
+/// quadratic in the depth and overflows its stack at about 16,000 levels.
+pub const MAX_URDF_DEPTH: usize = 64;
+
+/// Checks what makes URDF text costly before it is parsed: its size and its nesting depth (one
+/// linear pass). `arg` names the text in errors.
+pub(crate) fn check_urdf_text(arg: &str, urdf: &str) -> Result<()> {
+    let fail = |reason: String| Err(PhriError::Urdf { arg: arg.into(), reason });
+    if urdf.len() > MAX_URDF_BYTES {
+        return fail(format!("is {} bytes, more than a robot description may have ({MAX_URDF_BYTES} bytes)", urdf.len()));
+    }
+    let mut reader = quick_xml::Reader::from_str(urdf);
+    let mut depth = 0usize;
+    loop {
+        match reader.read_event() {
+            Ok(quick_xml::events::Event::Start(_)) => {
+                depth += 1;
+                if depth > MAX_URDF_DEPTH {
+                    return fail(format!(
+                        "not a valid URDF document (elements nested more than {MAX_URDF_DEPTH} deep, at byte {})",
+                        reader.buffer_position()
+                    ));
+                }
+            }
+            Ok(quick_xml::events::Event::End(_)) => depth = depth.saturating_sub(1),
+            Ok(quick_xml::events::Event::Eof) => return Ok(()),
+            Ok(_) => {}
+            Err(e) => return fail(format!("not a valid URDF document (XML error at byte {}: {e})", reader.error_position())),
+        }
+    }
+}
+
+/// The text of the URDF file at `path`: a regular file (a FIFO or device would block the reader
+/// or never end) of at most [`MAX_URDF_BYTES`]; errors name `arg` and the path.
+pub fn read_urdf_file(arg: &str, path: &Path) -> Result<String> {
+    use std::io::Read;
+    let fail =
+        |reason: String| PhriError::Urdf { arg: arg.into(), reason: format!("cannot read '{}': {reason}", path.display()) };
+    let meta = std::fs::metadata(path).map_err(|e| fail(e.to_string()))?;
+    if !meta.is_file() {
+        let what = if meta.is_dir() { "a folder" } else { "not a regular file (a FIFO, socket or device)" };
+        return Err(fail(format!("it is {what}")));
+    }
+    let file = std::fs::File::open(path).map_err(|e| fail(e.to_string()))?;
+    let mut text = String::new();
+    file.take(MAX_URDF_BYTES as u64 + 1).read_to_string(&mut text).map_err(|e| fail(e.to_string()))?;
+    if text.len() > MAX_URDF_BYTES {
+        return Err(fail(format!("it is larger than a robot description may be ({MAX_URDF_BYTES} bytes)")));
+    }
+    Ok(text)
+}
+
 impl RobotModel {
     /// Reads a URDF file. `base` defaults to the root link; `tip` to the end of the only
     /// leaf-most chain of movable joints (required when the tree branches).
     pub fn from_urdf_file(path: impl AsRef<Path>, base: Option<&str>, tip: Option<&str>) -> Result<Self> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| PhriError::Urdf { arg: "path".into(), reason: format!("cannot read '{}': {e}", path.display()) })?;
+        let text = read_urdf_file("path", path)?;
         Self::from_urdf_str(&text, base, tip).map_err(|e| match e {
             PhriError::Urdf { arg, reason } if arg == "urdf" => {
                 PhriError::Urdf { arg: "path".into(), reason: format!("'{}': {reason}", path.display()) }
@@ -267,6 +323,7 @@ impl RobotModel {
 
     /// Parses URDF text; see [`RobotModel::from_urdf_file`].
     pub fn from_urdf_str(urdf: &str, base: Option<&str>, tip: Option<&str>) -> Result<Self> {
+        check_urdf_text("urdf", urdf)?;
         let robot = urdf_rs::read_from_string(urdf)
             .map_err(|e| PhriError::Urdf { arg: "urdf".into(), reason: format!("not a valid URDF document ({e})") })?;
         build(&robot, base, tip)

@@ -54,8 +54,7 @@ impl PyRobot {
 /// The model carrying the collision geometry of the URDF at `path` as body `name` at `frame`;
 /// errors in the file name the path.
 fn attach_urdf_file(model: RobotModel, name: &str, frame: FrameId, path: &std::path::Path) -> phri_core::Result<RobotModel> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| PhriError::Urdf { arg: "path".into(), reason: format!("cannot read '{}': {e}", path.display()) })?;
+    let text = phri_core::model::read_urdf_file("path", path)?;
     model.with_attached_urdf(name, frame, &text).map_err(|e| match e {
         PhriError::Urdf { arg, reason } if arg == "urdf" => {
             PhriError::Urdf { arg: "path".into(), reason: format!("'{}': {reason}", path.display()) }
@@ -105,15 +104,16 @@ impl PyRobot {
     /// Reads a URDF file; `base` defaults to the root link, `tip` to the last moving link.
     #[staticmethod]
     #[pyo3(signature = (path, base=None, tip=None))]
-    fn from_urdf(path: PathBuf, base: Option<&str>, tip: Option<&str>) -> PyResult<Self> {
-        Ok(PyRobot::new(RobotModel::from_urdf_file(path, base, tip).py_err()?))
+    fn from_urdf(py: Python<'_>, path: PathBuf, base: Option<&str>, tip: Option<&str>) -> PyResult<Self> {
+        // Without the GIL: other threads run while the file is read and parsed.
+        Ok(PyRobot::new(py.detach(|| RobotModel::from_urdf_file(path, base, tip)).py_err()?))
     }
 
     /// Parses URDF text; see `from_urdf`.
     #[staticmethod]
     #[pyo3(signature = (urdf, base=None, tip=None))]
-    fn from_urdf_string(urdf: &str, base: Option<&str>, tip: Option<&str>) -> PyResult<Self> {
-        Ok(PyRobot::new(RobotModel::from_urdf_str(urdf, base, tip).py_err()?))
+    fn from_urdf_string(py: Python<'_>, urdf: &str, base: Option<&str>, tip: Option<&str>) -> PyResult<Self> {
+        Ok(PyRobot::new(py.detach(|| RobotModel::from_urdf_str(urdf, base, tip)).py_err()?))
     }
 
     /// A robot from its description (`robot.toml` beside the URDF, read by `phri.robots.load`):
@@ -272,9 +272,10 @@ impl PyRobot {
     /// collision geometry of its links (joined to its root by fixed joints) as body `name`,
     /// attached at `frame` (the URDF's root frame is `frame`). Only the geometry: a carried
     /// object's mass is `with_payload`'s.
-    fn with_attached_urdf(&self, name: &str, frame: &str, path: PathBuf) -> PyResult<Self> {
+    fn with_attached_urdf(&self, py: Python<'_>, name: &str, frame: &str, path: PathBuf) -> PyResult<Self> {
         let id = self.frame(frame)?;
-        Ok(self.derived(attach_urdf_file((*self.model).clone(), name, id, &path).py_err()?))
+        let model = (*self.model).clone();
+        Ok(self.derived(py.detach(|| attach_urdf_file(model, name, id, &path)).py_err()?))
     }
 
     /// The smallest signed distance [m] of each collision body (`collision_bodies`) to each object

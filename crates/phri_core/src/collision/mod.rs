@@ -174,6 +174,7 @@ impl RobotModel {
     /// The robot carrying the objects a URDF describes (e.g. a cup): the collision geometry of its
     /// links, joined by fixed joints from its root, attached at `frame` as body `name`.
     pub fn with_attached_urdf(self, name: &str, frame: FrameId, urdf: &str) -> Result<Self> {
+        crate::model::check_urdf_text("urdf", urdf)?;
         let robot = urdf_rs::read_from_string(urdf)
             .map_err(|e| PhriError::Urdf { arg: "urdf".into(), reason: format!("not a valid URDF document ({e})") })?;
         let mut attached = CollisionModel::default();
@@ -181,7 +182,16 @@ impl RobotModel {
             // The link's pose in the attached root's frame, through fixed joints.
             let mut pose = Transform::identity();
             let mut current = link.name.as_str();
+            // A chain is at most as long as there are joints: a longer walk is a cycle.
+            let mut steps = 0;
             while let Some(j) = robot.joints.iter().find(|j| j.child.link == current) {
+                steps += 1;
+                if steps > robot.joints.len() {
+                    return Err(PhriError::Urdf {
+                        arg: "urdf".into(),
+                        reason: format!("the joints above link '{}' form a cycle", link.name),
+                    });
+                }
                 if !matches!(j.joint_type, urdf_rs::JointType::Fixed) {
                     return Err(PhriError::Urdf {
                         arg: "urdf".into(),

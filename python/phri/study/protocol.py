@@ -57,6 +57,11 @@ _EPISODE_KEY = 1
 MAX_PARTICIPANTS = 10_000
 MAX_ATTEMPTS = 100
 
+#: The folder of a study folder that keeps copies of the task files it was started with (tasks
+#: given as paths), named ``<task name>.toml``: the study is resumed and reported from them,
+#: wherever it is run from and wherever the original files went.
+TASKS_FOLDER = "tasks"
+
 
 @dataclass(frozen=True)
 class StudyConfig:
@@ -86,6 +91,11 @@ class StudyConfig:
     sensor_noise: float = 0.1
     #: Weight-update rule: "all" (the paper), "max" or "confidence" (EpisodeConfig.rule).
     rule: str = "all"
+    #: Not a study parameter (neither compared nor saved): the study folder this config was read
+    #: from or runs into. With it, tasks given as paths name that folder's copies
+    #: (``tasks/<name>.toml``, see :data:`TASKS_FOLDER`) and nothing outside it; without, paths are
+    #: read as given (relative to the working directory).
+    folder: Path | None = dataclasses.field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         def fail(key: str, expected: str, got: Any) -> Exception:
@@ -155,7 +165,7 @@ class StudyConfig:
         tasks: dict[str, Task] = {}
         for spec in self.tasks:
             try:
-                task = load_task(spec)
+                task = load_task(self._task_source(spec))
             except (ConfigError, UnknownNameError) as e:
                 raise StudyConfigError(f"study: task {spec!r}: {e}") from None
             if self.duration is not None:
@@ -171,6 +181,42 @@ class StudyConfig:
                 f"got {self.familiarization!r}"
             )
         return tasks
+
+    def _task_source(self, spec: str) -> str:
+        """What `load_task` reads for the task `spec`: in a study folder, a path must name a file in
+        its :data:`TASKS_FOLDER` (a study.json naming any other file is refused)."""
+        if self.folder is None or not _is_path(spec):
+            return spec
+        root = (self.folder / TASKS_FOLDER).resolve()
+        inside = (self.folder / spec).resolve()
+        if Path(spec).is_absolute() or not inside.is_relative_to(root) or inside == root:
+            raise StudyConfigError(
+                f"study: task {spec!r} must be a file in the study folder's {TASKS_FOLDER}/ "
+                f"(e.g. '{TASKS_FOLDER}/coffee.toml'; a study keeps copies of its task files there), "
+                f"in {self.folder}"
+            )
+        return str(inside)
+
+    def in_folder(self, folder: str | Path) -> StudyConfig:
+        """This study as the study folder `folder` keeps it: each task given as a path named by its
+        copy there, ``tasks/<name>.toml`` (the copies are the caller's to write: see
+        :meth:`task_files`), and read from the folder from now on."""
+        loaded = self.load_tasks()
+        tasks = tuple(
+            f"{TASKS_FOLDER}/{task.name}.toml" if _is_path(spec) else spec
+            for spec, task in zip(self.tasks, loaded.values(), strict=True)
+        )
+        return dataclasses.replace(self, tasks=tasks, folder=Path(folder).resolve())
+
+    def task_files(self) -> dict[str, Path]:
+        """The files of the tasks given as paths, by the name of their copy in a study folder's
+        :data:`TASKS_FOLDER` (``<name>.toml``)."""
+        loaded = self.load_tasks()
+        return {
+            f"{task.name}.toml": Path(task.source)
+            for spec, task in zip(self.tasks, loaded.values(), strict=True)
+            if _is_path(spec)
+        }
 
     def task_names(self) -> list[str]:
         """Names of the study's tasks (a file's `name` key for a task given as a path)."""
@@ -188,6 +234,7 @@ class StudyConfig:
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
+        del d["folder"]  # where it is, not what it is
         d["tasks"], d["strategies"] = list(self.tasks), list(self.strategies)
         return d
 
@@ -198,7 +245,7 @@ class StudyConfig:
             raise StudyConfigError(
                 f"{source}: expected a table of study parameters, got {type(data).__name__}"
             )
-        known = {f.name for f in dataclasses.fields(cls)}
+        known = {f.name for f in dataclasses.fields(cls)} - {"folder"}
         unknown = sorted(set(data) - known)
         if unknown:
             raise StudyConfigError(f"{source}: unknown key(s) {unknown}; known: {sorted(known)}")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import io
 import json
 import math
@@ -33,7 +34,14 @@ import numpy as np
 from phri._extras import available, require
 from phri.atomic import partial_path, write_atomic
 from phri.study.errors import StudyFileError, StudyLockedError, StudyMismatchError
-from phri.study.protocol import EpisodeSpec, StudyConfig, participant_params, schedule, strategy_order
+from phri.study.protocol import (
+    TASKS_FOLDER,
+    EpisodeSpec,
+    StudyConfig,
+    participant_params,
+    schedule,
+    strategy_order,
+)
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -171,7 +179,8 @@ def read_manifest(run_dir: str | Path) -> tuple[StudyConfig, dict[str, Any]] | N
         config = StudyConfig.from_dict(manifest.get("config"), f"{path}: config")  # type: ignore[arg-type]
     except ValueError as e:
         raise StudyFileError(f"{e} (the folder was left untouched)") from None
-    return config, manifest
+    # Its tasks given as paths are the folder's own copies, whatever the working directory.
+    return dataclasses.replace(config, folder=Path(run_dir).resolve()), manifest
 
 
 def _differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
@@ -207,7 +216,7 @@ class ResultStore:
         self._index = {s.key: s for s in specs}
         self.rows: dict[tuple[Any, ...], dict[str, Any]] = {tuple(r[k] for k in KEY): r for r in rows}
         self._lock_fd: int | None = None
-        self.log_width = max(2, len(str(config.participants)))
+        self.log_width = _log_width(config)
 
     # -- opening ---------------------------------------------------------------------------------
 
@@ -257,35 +266,47 @@ class ResultStore:
             config = config or StudyConfig()
         else:
             found, manifest = existing
-            if config is None:
-                config = found
-            elif config != found:
-                differences = "; ".join(_differences(found.to_dict(), config.to_dict()))
+            # The study as given (its task paths read where they are) must be the folder's study.
+            given = config.in_folder(run_dir) if config is not None else found
+            if given != found:
+                differences = "; ".join(_differences(found.to_dict(), given.to_dict()))
                 raise StudyMismatchError(
                     f"{run_dir}: holds another study's results ({differences}). "
                     "Run it into a new folder, or resume this one without study options; nothing was changed"
                 )
-            digests = config.task_digests()
-            if manifest.get("task_digests") != digests:
-                changed = [t for t in digests if manifest.get("task_digests", {}).get(t) != digests[t]]
-                raise StudyMismatchError(
-                    f"{run_dir}: the task file(s) {changed} changed since this study started; "
-                    "its results would mix two task definitions (nothing was changed)"
-                )
+            # The folder's copies of the task files, and the files given now, as when it started.
+            for asked in (found, config) if config is not None else (found,):
+                digests = asked.task_digests()
+                if manifest.get("task_digests") != digests:
+                    changed = [t for t in digests if manifest.get("task_digests", {}).get(t) != digests[t]]
+                    raise StudyMismatchError(
+                        f"{run_dir}: the task file(s) {changed} changed since this study started; "
+                        "its results would mix two task definitions (nothing was changed)"
+                    )
             _check_version(run_dir, manifest, allow_version_change)
+            config = found
         config.load_tasks()  # every task file readable before anything is written
-        store = cls(run_dir, config, schedule(config), [])
+        specs = schedule(config)
+        copies = config.task_files() if existing is None else {}
         if existing is None:
-            store._create()
+            config = config.in_folder(run_dir)  # its task files are read from the folder's copies
+        store = cls(run_dir, config, specs, [])
+        if existing is None:
+            store._create(copies)
         else:
             store._note_version(existing[1])
         store._load()
         store._lock_fd = lock_fd  # the store releases it from now on
         return store
 
-    def _create(self) -> None:
+    def _create(self, task_files: Mapping[str, Path]) -> None:
+        """Writes a new study folder; `task_files` are copied into its tasks/ by their names there."""
         from phri import __version__
 
+        if task_files:
+            (self.run_dir / TASKS_FOLDER).mkdir(exist_ok=True)
+            for name, source in task_files.items():
+                write_atomic(self.run_dir / TASKS_FOLDER / name, source.read_bytes())
         manifest = {
             "format": FORMAT,
             "version": FORMAT_VERSION,
@@ -326,7 +347,7 @@ class ResultStore:
                 f"{path}: missing although {MANIFEST} is there; the folder is damaged (nothing was changed)"
             )
         text, torn = _read_complete(path)
-        self.rows = _study_rows(path, _parse_rows(path, text), self._index)
+        self.rows = _study_rows(path, _parse_rows(path, text), self._index, self.log_width)
         if torn:
             # A row torn by a kill: it was never complete, so its episode is run again.
             with open(path, "r+b") as f:
@@ -395,11 +416,17 @@ class ResultStore:
         self.close()
 
 
+def _log_width(config: StudyConfig) -> int:
+    """Digits of the participant number in the study's log names."""
+    return max(2, len(str(config.participants)))
+
+
 def _study_rows(
-    path: Path, rows: list[dict[str, Any]], index: Mapping[tuple[Any, ...], EpisodeSpec]
+    path: Path, rows: list[dict[str, Any]], index: Mapping[tuple[Any, ...], EpisodeSpec], log_width: int
 ) -> dict[tuple[Any, ...], dict[str, Any]]:
     """`rows` of results.csv `path` by episode key, each checked to be an episode of the study
-    (`index`: its episodes by key) and recorded once; else a StudyFileError naming the line."""
+    (`index`: its episodes by key), recorded once, and naming no log but its own in the folder's
+    logs/ (or none; a report opens it); else a StudyFileError naming the line."""
     out: dict[tuple[Any, ...], dict[str, Any]] = {}
     for n, row in enumerate(rows, start=2):
         key = tuple(row[k] for k in KEY)
@@ -407,6 +434,12 @@ def _study_rows(
         if spec is None or spec.seed != row["seed"] or spec.order != row["order"]:
             raise StudyFileError(
                 f"{path}: line {n}: an episode {dict(zip(KEY, key, strict=True))} not in this study"
+            )
+        own = f"{LOGS}/{spec.log_name(log_width)}"
+        if row["log"] not in ("", own):
+            raise StudyFileError(
+                f"{path}: line {n}: the log of episode {dict(zip(KEY, key, strict=True))} must be "
+                f"{own!r} (or none), got {row['log']!r}"
             )
         if key in out:
             raise StudyFileError(
@@ -474,7 +507,9 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
     specs = schedule(config)
     # The rows `phri study` would accept, or its error: duplicated or foreign rows are never counted.
     rows = list(
-        _study_rows(path, _parse_rows(path, _read_complete(path)[0]), {s.key: s for s in specs}).values()
+        _study_rows(
+            path, _parse_rows(path, _read_complete(path)[0]), {s.key: s for s in specs}, _log_width(config)
+        ).values()
     )
     order = {s.key: s.index for s in specs}
     rows.sort(key=lambda r: order.get(tuple(r[k] for k in KEY), len(order)))  # type: ignore[arg-type]

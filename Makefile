@@ -18,7 +18,7 @@ $(DEPS): pyproject.toml | $(PY)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet "maturin>=1.9,<2" "numpy>=1.24" "pytest>=8" "pybullet>=3.2.6" "scipy>=1.11" \
 		"matplotlib>=3.8" "pandas>=2.1" "pyarrow>=14" "statsmodels>=0.14" "tqdm>=4.66" "ray>=2.9" \
-		"pyyaml>=6" "ruff>=0.6" "mypy>=1.10" \
+		"pyyaml>=6" "hypothesis>=6.100" "ruff>=0.6" "mypy>=1.10" \
 		"pylibfranka==0.21.3" "franky-sim==1.0.4"
 	touch $@
 

@@ -147,3 +147,64 @@ def test_real_numbers_in_any_numeric_dtype_and_layout_are_read_as_before() -> No
         np.testing.assert_allclose(robot.gravity(variant), expected, rtol=0, atol=0)
     np.testing.assert_allclose(robot.gravity(np.zeros(7, np.int32)), robot.gravity(np.zeros(7)), atol=0)
     np.testing.assert_allclose(robot.gravity(np.zeros(7, np.uint8)), robot.gravity(np.zeros(7)), atol=0)
+
+
+# -- extreme finite values (#19): each parameter's documented range, refused outside it -----------
+
+
+def test_array_entries_beyond_the_magnitude_limit_are_refused_naming_the_argument(features) -> None:
+    robot = phri.Robot.jaco2()
+    with pytest.raises(InvalidParameterError, match=r"^q must be within ±1e9, got 1e300 at index 3"):
+        robot.gravity([0, 0, 0, 1e300, 0, 0, 0])
+    xi = np.zeros((5, 7))
+    xi[0, 0] = 1e300  # Φ was inf
+    with pytest.raises(InvalidParameterError, match=r"^xi must be within ±1e9, got 1e300 at index \(0, 0\)"):
+        features.phi(xi)
+    with pytest.raises(InvalidParameterError, match=r"^weights must be within ±1e9"):
+        features.weighted_cost(np.zeros((5, 7)), [1e308, 1])
+
+
+def test_a_negative_efficiency_weight_is_refused_not_converged_at_a_maximum(features) -> None:
+    robot = phri.Robot.jaco2()
+    q = (robot.lower_limits.clip(-3, 3) + robot.upper_limits.clip(-3, 3)) / 2
+    optimizer = _optimizer(features)
+    with pytest.raises(InvalidParameterError, match=r"^weights \[0\] \('efficiency'\) must be >= 0, got -1"):
+        optimizer.solve([-1, 0], q, q + 0.3)  # reported converged at the straight line, its maximum
+    _, info = optimizer.solve([0, 1], q, q + 0.3)  # zero is allowed; other features may be negative
+    _, info = optimizer.solve([1, -1], q, q + 0.3)
+    assert np.isfinite(info.cost)
+
+
+@pytest.mark.parametrize("duration", [1e-300, 5e-324, 1e-4, 2e6])
+def test_a_duration_that_overflows_the_reference_is_refused(duration) -> None:
+    robot = phri.Robot.jaco2()
+    q = (robot.lower_limits.clip(-3, 3) + robot.upper_limits.clip(-3, 3)) / 2
+    # 1e-300 s gave an acceleration of ±inf.
+    with pytest.raises(InvalidParameterError, match=r"^duration must be in \[1e-3, 1e6\] s for 11 waypoints"):
+        phri.TimedTrajectory(np.linspace(q, q + 0.5, 11), duration)
+    with pytest.raises(InvalidParameterError, match=r"^duration must be in "):
+        phri.TrajectoryOptimizer(
+            phri.Features(robot, ["efficiency"]), 11, duration=duration, collisions=False
+        )
+    _, qd, qdd = phri.TimedTrajectory(np.linspace(q, q + 0.5, 11), 1e-3).sample(3e-4)
+    assert np.isfinite(qd).all() and np.isfinite(qdd).all()
+
+
+def test_payload_and_wall_parameters_have_ranges() -> None:
+    robot = phri.Robot.jaco2()
+    frame = robot.frame_names[-1]
+    with pytest.raises(InvalidParameterError, match=r"^com must be within ±10 m"):
+        robot.with_payload(frame, 1.0, com=[1e8, 0, 0])
+    with pytest.raises(InvalidParameterError, match=r"^com must be within ±1e9"):
+        robot.with_payload(frame, 1.0, com=[1e308, 0, 0])
+    with pytest.raises(InvalidParameterError, match=r"^mass must be in \[0, 1000\] kg"):
+        robot.with_payload(frame, 1e300)
+    assert np.isfinite(robot.with_payload(frame, 1000.0, com=[10, -10, 10]).gravity(np.zeros(7))).all()
+    for arg, value in [
+        ("wall_stiffness", 1e300),
+        ("wall_band", 1e12),
+        ("wall_damping", 1e6),
+        ("wall_margin", 2.0),
+    ]:
+        with pytest.raises(InvalidParameterError, match=rf"^{arg} must be in \[0, "):
+            phri.ImpedanceController(robot, **{arg: value})

@@ -387,16 +387,20 @@ def test_default_gains_need_a_seven_joint_robot():
 
 
 @pytest.mark.parametrize("method", ["torque", "torque_implicit", "torque_full"])
-def test_finite_inputs_whose_torque_overflows_are_an_error_not_nan(jaco2, method):
-    c = phri.ImpedanceController(jaco2, stiffness=np.full(7, 1e308), inertia=np.ones(7))
+def test_finite_inputs_whose_torque_would_overflow_are_refused_naming_them(jaco2, method):
+    """Gains and states are bounded (±1e9, phri_core::MAX_MAGNITUDE), so the torque cannot overflow:
+    a gain of 1e308 and a reference 1e300 away are refused by name instead."""
+    with pytest.raises(ex.InvalidParameterError, match=r"^stiffness must be within ±1e9, got 1e308"):
+        phri.ImpedanceController(jaco2, stiffness=np.full(7, 1e308), inertia=np.ones(7))
+    c = phri.ImpedanceController(jaco2, stiffness=np.full(7, 1e9), inertia=np.ones(7))
     q = np.full(7, np.pi)
-    far = q + 1e300
     calls = {
-        "torque": lambda: c.torque(q, np.zeros(7), far, np.zeros(7)),
-        "torque_implicit": lambda: c.torque_implicit(q, np.zeros(7), far, np.zeros(7), 1e-3),
-        "torque_full": lambda: c.torque_full(q, np.zeros(7), far, np.zeros(7), np.zeros(7), np.zeros(7)),
+        "torque": lambda r: c.torque(q, np.zeros(7), r, np.zeros(7)),
+        "torque_implicit": lambda r: c.torque_implicit(q, np.zeros(7), r, np.zeros(7), 1e-3),
+        "torque_full": lambda r: c.torque_full(q, np.zeros(7), r, np.zeros(7), np.zeros(7), np.zeros(7)),
     }
-    with pytest.raises(ex.InvalidParameterError, match=r"so large that the torque of joint \d overflows"):
-        calls[method]()
+    with pytest.raises(ex.InvalidParameterError, match=r"^q_ref must be within ±1e9, got 1e300"):
+        calls[method](q + 1e300)
+    assert np.isfinite(calls[method](np.full(7, 1e9))).all()
     # The same controller is still fine on sane inputs.
     assert np.all(np.isfinite(c.torque(q, np.zeros(7), q, np.zeros(7))))

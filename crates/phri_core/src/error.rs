@@ -47,6 +47,12 @@ impl PhriError {
     }
 }
 
+/// Largest magnitude of an entry of an array input [in its SI unit: rad, m, s, N·m, cost weight]:
+/// no joint position, velocity, torque, weight or distance phri handles lies beyond it, and products
+/// of a few such values stay far from overflow, so results stay finite. (The Python layer refuses
+/// arrays beyond it, naming the argument.)
+pub const MAX_MAGNITUDE: f64 = 1e9;
+
 /// Checks that `values` has `len` entries, all finite.
 pub fn check_vector(arg: &str, values: &[f64], len: usize) -> Result<()> {
     if values.len() != len {

@@ -27,5 +27,5 @@ pub mod update;
 pub mod wall;
 
 pub use data::RobotData;
-pub use error::{PhriError, Result};
+pub use error::{PhriError, Result, MAX_MAGNITUDE};
 pub use model::{AxisPermutation, BodyInertia, Frame, FrameId, Joint, JointKind, RobotModel, Transform};

@@ -250,6 +250,12 @@ fn check_joint(j: &urdf_rs::Joint) -> Result<()> {
     Ok(())
 }
 
+/// Heaviest payload [kg] ([`RobotModel::with_payload`]; arms carry tens of kilograms at most).
+pub const MAX_PAYLOAD_MASS: f64 = 1000.0;
+
+/// Farthest a payload's centre of mass lies from its frame [m] in each axis.
+pub const MAX_PAYLOAD_OFFSET: f64 = 10.0;
+
 /// Largest robot description read [bytes] (32 MiB; the shipped JACO2's is 20 kB, and meshes are
 /// separate files).
 pub const MAX_URDF_BYTES: usize = 32 << 20;
@@ -366,11 +372,14 @@ impl RobotModel {
     /// Adds a rigid payload (e.g. a held cup) to the body that carries `frame`.
     /// `com` is the payload's centre of mass in that frame [m], `inertia` about it [kg·m²].
     pub fn with_payload(mut self, frame: FrameId, mass: f64, com: Vector3<f64>, inertia: Matrix3<f64>) -> Result<Self> {
-        if !(mass.is_finite() && mass >= 0.0) {
-            return Err(PhriError::invalid("mass", format!("must be a finite mass >= 0 kg, got {mass}")));
+        if !(0.0..=MAX_PAYLOAD_MASS).contains(&mass) {
+            return Err(PhriError::invalid("mass", format!("must be in [0, {MAX_PAYLOAD_MASS}] kg, got {mass}")));
         }
-        if com.iter().any(|v| !v.is_finite()) {
-            return Err(PhriError::invalid("com", "must be finite"));
+        if !com.iter().all(|v| v.abs() <= MAX_PAYLOAD_OFFSET) {
+            return Err(PhriError::invalid(
+                "com",
+                format!("must be within ±{MAX_PAYLOAD_OFFSET} m of the frame in each axis, got {:?}", com.as_slice()),
+            ));
         }
         check_inertia(&inertia).map_err(|reason| PhriError::invalid("inertia", reason))?;
         let f = &self.frames[frame.0];

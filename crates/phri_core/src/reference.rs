@@ -30,6 +30,30 @@ pub(crate) fn hermite_rate(s: f64) -> [f64; 4] {
     [6.0 * s2 - 6.0 * s, 3.0 * s2 - 4.0 * s + 1.0, -6.0 * s2 + 6.0 * s, 3.0 * s2 - 2.0 * s]
 }
 
+/// Shortest time between consecutive waypoints [s] (10 kHz): below it velocities and accelerations
+/// of a plan's reference overflow (a duration of 1e-300 s gave ±inf).
+pub const MIN_WAYPOINT_SPACING: f64 = 1e-4;
+
+/// Longest duration of a trajectory [s] (about 11.6 days).
+pub const MAX_DURATION: f64 = 1e6;
+
+/// Checks `duration` [s] for `waypoints` evenly spaced waypoints (≥ 2) against
+/// [`MIN_WAYPOINT_SPACING`] and [`MAX_DURATION`].
+pub fn check_duration(duration: f64, waypoints: usize) -> Result<()> {
+    let segments = waypoints.max(2) as f64 - 1.0;
+    let shortest = MIN_WAYPOINT_SPACING * segments;
+    if !(duration >= shortest && duration <= MAX_DURATION) {
+        return Err(PhriError::invalid(
+            "duration",
+            format!(
+                "must be in [{shortest:e}, {MAX_DURATION:e}] s for {waypoints} waypoints (at least \
+                 {MIN_WAYPOINT_SPACING} s between waypoints), got {duration:e}"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// How waypoints are joined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Interpolation {
@@ -112,10 +136,7 @@ impl TimedTrajectory {
             return Err(PhriError::shape("waypoints", format!("(N, {n}) with N >= 2"), format!("{} values", waypoints.len())));
         }
         check_finite("waypoints", &waypoints)?;
-        let segments = (waypoints.len() / n - 1) as f64;
-        if !(duration.is_finite() && duration > 0.0 && (segments / duration).is_finite()) {
-            return Err(PhriError::invalid("duration", format!("must be a finite time > 0 s, got {duration}")));
-        }
+        check_duration(duration, waypoints.len() / n)?;
         let scratch = Scratch {
             q_old: vec![0.0; n],
             v_old: vec![0.0; n],

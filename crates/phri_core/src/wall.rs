@@ -37,16 +37,19 @@ impl Default for WallParams {
     }
 }
 
+/// The accepted ranges of [`WallParams`]: margin and band within 1 m [m] (the wall acts near the
+/// furniture), stiffness up to 10⁶ N/m and damping up to 10⁵ N·s/m (beyond them the force of a
+/// millimetre is a hard impact, and the torque can overflow).
+pub const WALL_RANGES: [(&str, f64); 4] =
+    [("wall_margin", 1.0), ("wall_band", 1.0), ("wall_stiffness", 1e6), ("wall_damping", 1e5)];
+
 impl WallParams {
-    fn check(&self) -> Result<()> {
-        for (arg, v) in [
-            ("wall_margin", self.margin),
-            ("wall_band", self.band),
-            ("wall_stiffness", self.stiffness),
-            ("wall_damping", self.damping),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(PhriError::invalid(arg, format!("must be finite and >= 0, got {v}")));
+    /// Checks every parameter against [`WALL_RANGES`], naming the first outside.
+    pub fn check(&self) -> Result<()> {
+        let values = [self.margin, self.band, self.stiffness, self.damping];
+        for ((arg, top), v) in WALL_RANGES.iter().zip(values) {
+            if !(v >= 0.0 && v <= *top) {
+                return Err(PhriError::invalid(arg, format!("must be in [0, {top:e}], got {v}")));
             }
         }
         if !(self.band > 0.0 && self.stiffness > 0.0) {

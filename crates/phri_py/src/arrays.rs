@@ -3,6 +3,7 @@
 use std::borrow::Cow;
 
 use numpy::{AllowTypeChange, PyArrayDescrMethods, PyArrayLikeDyn, PyUntypedArray, PyUntypedArrayMethods};
+use phri_core::MAX_MAGNITUDE;
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
@@ -99,10 +100,16 @@ fn values<'a>(a: &'a ArrayIn<'_>) -> Cow<'a, [f64]> {
     }
 }
 
-fn check_finite(arg: &str, values: &[f64], n: usize, batched: bool) -> PyResult<()> {
-    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-        let at = if batched { format!("({}, {})", i / n, i % n) } else { i.to_string() };
-        return Err(error(Kind::NonFinite, format!("{arg} must be finite, got {} at index {at}", values[i])));
+/// Finite, and within ±MAX_MAGNITUDE (phri_core::MAX_MAGNITUDE says why).
+pub fn check_finite(arg: &str, values: &[f64], n: usize, batched: bool) -> PyResult<()> {
+    let at = |i: usize| if batched { format!("({}, {})", i / n, i % n) } else { i.to_string() };
+    if let Some(i) = values.iter().position(|v| !v.is_finite() || v.abs() > MAX_MAGNITUDE) {
+        let (v, at) = (values[i], at(i));
+        return Err(if v.is_finite() {
+            error(Kind::InvalidParameter, format!("{arg} must be within ±{MAX_MAGNITUDE:e}, got {v:e} at index {at}"))
+        } else {
+            error(Kind::NonFinite, format!("{arg} must be finite, got {v} at index {at}"))
+        });
     }
     Ok(())
 }

@@ -112,7 +112,7 @@ fn keepout_params(arg: &str, name: &str, given: &Given<'_>) -> PyResult<KeepoutS
         .ok_or_else(|| error(Kind::InvalidParameter, format!("{arg}.radius: feature '{name}' needs its keep-out radius [m]")))?;
     let offset = match given.get("offset") {
         Some(v) => {
-            let a: ArrayIn<'_> = v.extract()?;
+            let a: ArrayIn<'_> = v.extract().map_err(|e| PyTypeError::new_err(format!("{arg}.offset: {e}")))?;
             let o = vector(&format!("{arg}.offset"), &a, 2)?;
             [o[0], o[1]]
         }

@@ -22,7 +22,7 @@ const _: () = assert!(
 use pyo3::prelude::*;
 use pyo3::Borrowed;
 
-use crate::arrays::{shape_str, vector, ArrayIn};
+use crate::arrays::{check_finite, shape_str, vector, ArrayIn};
 use crate::errors::{error, to_py, IntoPy, Kind};
 use crate::robot::PyRobot;
 use crate::scene::PyScene;
@@ -47,13 +47,18 @@ impl<'a, 'py> FromPyObject<'a, 'py> for Joints<'py> {
 }
 
 impl Joints<'_> {
-    /// The values; a fast-path slice is checked (length, finiteness) by the core, which names `arg`.
+    /// The values, finite and within ±MAX_MAGNITUDE; a fast-path slice's length is checked by the
+    /// core, which names `arg`.
     fn values(&self, arg: &str, n: usize) -> PyResult<Cow<'_, [f64]>> {
         match self {
-            Joints::Fast(a) => Ok(match a.as_slice() {
-                Ok(s) => Cow::Borrowed(s),
-                Err(_) => Cow::Owned(a.as_array().to_vec()),
-            }),
+            Joints::Fast(a) => {
+                let values = match a.as_slice() {
+                    Ok(s) => Cow::Borrowed(s),
+                    Err(_) => Cow::Owned(a.as_array().to_vec()),
+                };
+                check_finite(arg, &values, n, false)?;
+                Ok(values)
+            }
             Joints::Any(a) => vector(arg, a, n),
         }
     }
@@ -184,8 +189,10 @@ impl PyImpedanceController {
             gravity_compensation,
         };
         let mut controller = ImpedanceController::new(model.clone(), params).py_err()?;
+        // Checked with or without a scene: a wrong value is a mistake either way.
+        let params = WallParams { margin: wall_margin, band: wall_band, stiffness: wall_stiffness, damping: wall_damping };
+        params.check().py_err()?;
         if let (Some(scene), true) = (&scene, wall) {
-            let params = WallParams { margin: wall_margin, band: wall_band, stiffness: wall_stiffness, damping: wall_damping };
             let wall = VirtualWall::new(&model, &scene.scene, params).map_err(|e| match e {
                 phri_core::PhriError::Planning { reason } => {
                     error(Kind::Planning, format!("{reason}; pass wall=False to run without the virtual wall"))

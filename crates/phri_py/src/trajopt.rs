@@ -193,9 +193,7 @@ fn step_limits(
 ) -> PyResult<Vec<f64>> {
     let invalid = |m: String| Err(error(Kind::InvalidParameter, m));
     if let Some(d) = duration {
-        if !(d.is_finite() && d > 0.0) {
-            return invalid(format!("duration must be a finite time > 0 s, got {d}"));
-        }
+        phri_core::reference::check_duration(d, waypoints).py_err()?;
     }
     let top = max_speed_fraction();
     if !(speed_fraction > 0.0 && speed_fraction <= top) {

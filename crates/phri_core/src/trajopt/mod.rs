@@ -293,6 +293,21 @@ impl TrajectoryOptimizer {
             return Err(PhriError::invalid("features", "belong to a robot with a different number of joints"));
         }
         check_vector("weights", weights, features.len())?;
+        // A negative weight on a sum of squared steps (efficiency) has no minimum: the cost falls
+        // without bound as the path lengthens, and the straight line, where the solver would stop
+        // with a zero gradient, is its maximum.
+        for (k, e) in features.resolution_exponents().into_iter().enumerate() {
+            if e == -1 && weights[k] < 0.0 {
+                return Err(PhriError::invalid(
+                    "weights",
+                    format!(
+                        "[{k}] ('{}') must be >= 0, got {}: a negative weight on a sum of squared steps has no minimum",
+                        features.names()[k],
+                        weights[k]
+                    ),
+                ));
+            }
+        }
         check_vector("start", start, n)?;
         check_vector("goal", goal, n)?;
         for (arg, q) in [("start", start), ("goal", goal)] {

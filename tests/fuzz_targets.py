@@ -560,6 +560,52 @@ TARGETS: dict[str, Target] = {
 }
 
 
+# The task parser (Python: phri.config) on task files near the shipped ones.
+TASK_FILE = Path(tempfile.mkdtemp(prefix="phri-fuzz-task-")) / "task.toml"
+TOML_VALUES = st.one_of(
+    st.integers(-(2**70), 2**70).map(str),
+    st.sampled_from(
+        ["nan", "inf", "-inf", "1e308", "-1e308", "5e-324", "0", "-0.0", "true", '""', '"x"', "[]"]
+    ),
+    st.sampled_from(['"../x"', '"a\\u0000b"', '"' + "é" * 300 + '"', "[[[[1]]]]", "{a = 1}", "9" * 5000]),
+    st.floats(allow_nan=False, allow_infinity=False).map(repr),
+    st.lists(st.floats(-10, 10).map(repr), max_size=9).map(lambda v: "[" + ", ".join(v) + "]"),
+)
+
+
+@st.composite
+def task_texts(draw: st.DrawFn) -> str:
+    """A shipped task file with a few of its values replaced, lines dropped or doubled, or text put in."""
+    name = draw(st.sampled_from(phri.task_names()))
+    lines = (files("phri") / "tasks" / f"{name}.toml").read_text().splitlines()
+    for _ in range(draw(st.integers(1, 3))):
+        i = draw(st.integers(0, len(lines) - 1))
+        match draw(st.sampled_from(["value", "value", "drop", "double", "insert"])):
+            case "value" if "=" in lines[i]:
+                lines[i] = lines[i].split("=", 1)[0] + "= " + draw(TOML_VALUES)
+            case "drop":
+                del lines[i]
+            case "double":
+                lines.insert(i, lines[i])
+            case "insert":
+                lines.insert(i, draw(st.text(max_size=30)))
+            case _:
+                pass
+        if not lines:
+            break
+    return "\n".join(lines) + "\n"
+
+
+def _load_task_text(_: Any, *, text: str) -> Any:
+    TASK_FILE.write_text(text, encoding="utf-8", errors="surrogatepass")
+    return phri.load_task(TASK_FILE).duration
+
+
+TARGETS["load_task.file"] = Target(
+    lambda: None, _load_task_text, {"text": task_texts()}, extra={"names": [str(TASK_FILE)]}
+)
+
+
 # -- checking a call ------------------------------------------------------------------------------
 
 
@@ -601,6 +647,7 @@ def check(name: str, obj: Any, target: Target, kwargs: dict[str, Any]) -> None:
         message = str(e)
         # An argument's name, or for a file or name the value given (ConfigError names the file).
         given = [str(v) for v in kwargs.values() if isinstance(v, str | os.PathLike) and str(v)]
+        given += target.extra.get("names", [])
         assert any(k in message for k in [*kwargs, *given]) or "features[" in message, (
             f"{name}: {type(e).__name__} names none of the arguments {list(kwargs)}: {message}"
         )

@@ -1221,3 +1221,24 @@ def test_a_robot_description_larger_than_the_limit_is_refused(tmp_path: Path) ->
         f.write(b"</robot>")
     with pytest.raises(ex.UrdfError, match=r"larger than a robot description may be \(33554432 bytes\)"):
         phri.Robot.from_urdf(big)
+
+
+def _one_cylinder_link(radius: str, length: str) -> str:
+    return (
+        '<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/>'
+        '<inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial>'
+        f'<collision><geometry><cylinder radius="{radius}" length="{length}"/></geometry></collision></link>'
+        '<joint name="j" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>'
+    )
+
+
+def test_a_cylinder_far_longer_than_thick_is_covered_by_a_bounded_number_of_spheres() -> None:
+    """Found by the URDF proptest: the sphere count overflowed (a panic in debug builds, in release
+    a link silently left without spheres, so collision checks ignored it)."""
+    robot = phri.Robot.from_urdf_string(_one_cylinder_link("1e-300", "1"))
+    centers, radii, _ = robot.collision_spheres("b")
+    assert 1 <= len(radii) <= 64
+    assert np.ptp(centers[:, 2]) + 2 * radii.max() >= 1.0  # the spheres still span the cylinder
+    with pytest.raises(ex.UrdfError, match=r"not a distance in \(0, 1000\] m"):
+        phri.Robot.from_urdf_string(_one_cylinder_link("1e200", "1"))

@@ -212,6 +212,14 @@ impl Deformation {
             return Ok(0);
         }
         let rows = &mut trajectory[(index + 1) * dof..(index + 1 + m) * dof];
+        // The moved waypoints stay finite: each moves by less than 2·|μ|·|u_H|.
+        let reach = 2.0 * self.params.mu.abs() * largest;
+        if let Some(v) = rows.iter().find(|v| !(v.abs() + reach).is_finite()) {
+            return Err(PhriError::invalid(
+                "trajectory",
+                format!("has a waypoint so large ({v:e}) that the deformed one overflows (non-finite)"),
+            ));
+        }
         // Rows of a known length unroll and vectorise: 1.5–2× faster for the arm's 7 joints (measured).
         match dof {
             6 => self.apply(rows, m, fixed::<6>(u_h)),

@@ -18,8 +18,16 @@ use crate::model::Transform;
 /// distances to the links: conservative, by up to that much.
 pub const COVER: f64 = 1.1;
 
+/// Largest size of a collision primitive [m] (beyond it squares of sizes overflow, and no robot or
+/// object near one is that large).
+pub const MAX_SIZE: f64 = 1000.0;
+
 /// Most spheres one box is covered with (its cells grow beyond this).
 const MAX_BOX_CELLS: usize = 64;
+
+/// Most spheres along one cylinder or capsule (they grow beyond this: a thin rod 10⁶ times longer
+/// than thick would otherwise need 10⁶ spheres, and one 10³⁰⁰ times longer an allocation that aborts).
+const MAX_CYLINDER_SPHERES: usize = 64;
 
 /// A solid primitive in its own frame (as URDF `<geometry>` describes it).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,8 +50,8 @@ impl Primitive {
             Primitive::Cylinder { radius, length } | Primitive::Capsule { radius, length } => vec![*radius, *length],
         };
         check_finite("geometry", &values)?;
-        if let Some(v) = values.iter().find(|v| !(**v > 0.0)) {
-            return Err(PhriError::invalid("geometry", format!("has a size that is not a distance > 0 m ({v})")));
+        if let Some(v) = values.iter().find(|v| !(**v > 0.0 && **v <= MAX_SIZE)) {
+            return Err(PhriError::invalid("geometry", format!("has a size that is not a distance in (0, {MAX_SIZE}] m ({v})")));
         }
         Ok(())
     }
@@ -74,7 +82,16 @@ fn cylinder(r: f64, length: f64) -> Vec<(Vector3<f64>, f64)> {
         return vec![(Vector3::zeros(), (r * r + length * length / 4.0).sqrt())];
     }
     let span = length - 2.0 * e;
-    let count = (span / (2.0 * e)).ceil() as usize + 1;
+    let needed = (span / (2.0 * e)).ceil() + 1.0;
+    if needed > MAX_CYLINDER_SPHERES as f64 {
+        // A cylinder much longer than thick: MAX_CYLINDER_SPHERES larger spheres, each covering
+        // its 1/count of the length (radius √(r² + half²)), rather than a count without bound.
+        let count = MAX_CYLINDER_SPHERES;
+        let half = length / (2.0 * count as f64);
+        let radius = (r * r + half * half).sqrt();
+        return (0..count).map(|k| (Vector3::new(0.0, 0.0, -length / 2.0 + (2 * k + 1) as f64 * half), radius)).collect();
+    }
+    let count = needed as usize;
     let spacing = span / (count - 1) as f64;
     (0..count).map(|k| (Vector3::new(0.0, 0.0, -span / 2.0 + k as f64 * spacing), big)).collect()
 }

@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import importlib.resources
+import os
+
+# Ray instances the tests start listen on loopback only (the house rule; see
+# phri.study.parallel.RAY_LOCAL_ONLY_ENV): Ray reads this when it is imported.
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NamedTuple

@@ -22,6 +22,7 @@ import contextlib
 import multiprocessing
 import os
 import socket
+import sys
 import threading
 import time
 from collections import deque
@@ -264,6 +265,8 @@ class RayBackend:
         address: str | None = None,
         tasks: Mapping[str, Task] | None = None,
     ) -> None:
+        if not address and "ray" not in sys.modules:
+            os.environ.setdefault(RAY_LOCAL_ONLY_ENV, "0")  # read once, when Ray is imported
         ray = require("ray", "the 'ray' backend")
         self.ray = ray
         if workers is not None and workers < 1:
@@ -279,6 +282,8 @@ class RayBackend:
                 kwargs = {"num_cpus": default_workers() if workers is None else workers}
             ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
             self._started = True
+            if not address:
+                _check_loopback(ray)
         self.workers = cluster_cpus(ray) if workers is None else workers
         actor = ray.remote(num_cpus=1)(_RayWorker)
         options = {"runtime_env": {"env_vars": dict(THREAD_ENV)}}
@@ -317,6 +322,30 @@ class RayBackend:
 
 
 #: How long a Ray cluster's address may take to accept a connection [s].
+#: With this environment variable "0" when Ray is imported, a Ray instance that phri starts on this
+#: machine (``--backend ray`` without ``--address``) takes 127.0.0.1 as its node's address and binds
+#: every server (GCS, raylet, workers) there, as Ray does on macOS and Windows, instead of listening
+#: on all interfaces: nobody on the network can reach it. phri sets it unless it is set already;
+#: "1" asks for Ray's own default (reachable from the network; Ray's token authentication then
+#: guards it). A cluster given by ``--address`` is the user's and is left as it is.
+RAY_LOCAL_ONLY_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+def _check_loopback(ray: Any) -> None:
+    """Stops the local Ray instance just started unless it listens on loopback only, or the user asked
+    for Ray's default (RAY_LOCAL_ONLY_ENV = "1")."""
+    ip = ray.util.get_node_ip_address()
+    if ip.startswith("127.") or ip == "::1" or os.environ.get(RAY_LOCAL_ONLY_ENV) == "1":
+        return
+    ray.shutdown()
+    raise InvalidParameterError(
+        f"backend 'ray': the local Ray instance would listen on {ip}, reachable from the network, "
+        f"because Ray was imported before phri could keep it on 127.0.0.1. Set {RAY_LOCAL_ONLY_ENV}=0 "
+        f"before importing Ray, or start Ray yourself (ray.init) before the study, or set "
+        f"{RAY_LOCAL_ONLY_ENV}=1 to accept it"
+    )
+
+
 RAY_CONNECT_TIMEOUT = 10.0
 
 

@@ -208,3 +208,21 @@ def test_payload_and_wall_parameters_have_ranges() -> None:
     ]:
         with pytest.raises(InvalidParameterError, match=rf"^{arg} must be in \[0, "):
             phri.ImpedanceController(robot, **{arg: value})
+
+
+def test_collision_spheres_given_by_the_user_are_bounded() -> None:
+    robot = phri.Robot.jaco2()
+    frame = robot.frame_names[-1]
+    many = np.zeros((2000, 3))
+    with pytest.raises(InvalidParameterError, match=r"^spheres must hold 1 to 1024 spheres, got 2000"):
+        robot.with_collision_spheres("tool", frame, many, np.full(2000, 0.01))
+    with pytest.raises(InvalidParameterError, match=r"^spheres radius must be a distance in \(0, 1000\] m"):
+        robot.with_collision_spheres("tool", frame, np.zeros((1, 3)), [1e8])
+    with pytest.raises(InvalidParameterError, match=r"^spheres centres must be within ±1000 m"):
+        robot.with_collision_spheres("tool", frame, [[1e8, 0, 0]], [0.1])
+    assert (
+        "tool"
+        in robot.with_collision_spheres(
+            "tool", frame, np.zeros((1024, 3)), np.full(1024, 0.01)
+        ).collision_bodies
+    )

@@ -21,6 +21,11 @@ use crate::error::{check_finite, PhriError, Result};
 use crate::model::{FrameId, RobotModel, Transform};
 use crate::scene::Scene;
 
+/// Most spheres of one collision body given with `with_collision_spheres` [count]: each distance
+/// query of a pair of bodies costs the product of their sphere counts (the fitted JACO2 has 48
+/// spheres in 9 bodies, a fitted box at most 64).
+pub const MAX_BODY_SPHERES: usize = 1024;
+
 /// A ball of `radius` [m] centred at `center`, in its body's frame [m].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sphere {
@@ -158,13 +163,23 @@ impl RobotModel {
         if frame.0 >= self.frames.len() {
             return Err(PhriError::invalid("frame", "is not a frame of this robot"));
         }
-        if spheres.is_empty() {
-            return Err(PhriError::invalid("spheres", "must hold at least one sphere"));
+        if spheres.is_empty() || spheres.len() > MAX_BODY_SPHERES {
+            return Err(PhriError::invalid(
+                "spheres",
+                format!("must hold 1 to {MAX_BODY_SPHERES} spheres, got {}", spheres.len()),
+            ));
         }
+        let size = fit::MAX_SIZE;
         for s in &spheres {
             check_finite("spheres", s.center.as_slice())?;
-            if !(s.radius > 0.0 && s.radius.is_finite()) {
-                return Err(PhriError::invalid("spheres", format!("radius must be a finite distance > 0 m, got {}", s.radius)));
+            if !s.center.iter().all(|c| c.abs() <= size) {
+                return Err(PhriError::invalid("spheres", format!("centres must be within ±{size} m of the frame")));
+            }
+            if !(s.radius > 0.0 && s.radius <= size) {
+                return Err(PhriError::invalid(
+                    "spheres",
+                    format!("radius must be a distance in (0, {size}] m, got {}", s.radius),
+                ));
             }
         }
         self.collision.set(name.to_string(), frame, spheres);

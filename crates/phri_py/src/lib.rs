@@ -1,5 +1,11 @@
 //! The thin PyO3 layer over phri_core, importable as `phri._phri`. Each file mirrors one core
 //! module; a method converts its arguments, calls the core, and maps the error.
+//!
+//! Accepted ranges shared by every method: array inputs hold real numbers (integer or floating
+//! dtypes; not bool, complex, strings, datetimes, structured, object or masked arrays), finite and
+//! within ±1e9 in their SI unit (`phri_core::MAX_MAGNITUDE`); integer arguments are Python or
+//! numpy integers, not bools, and out of range they are an InvalidParameterError naming the
+//! argument and its range. Each scalar's own range is in its class's documentation.
 
 use pyo3::prelude::*;
 

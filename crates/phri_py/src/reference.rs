@@ -21,7 +21,8 @@ fn check_time(arg: &str, t: f64) -> PyResult<()> {
 /// N waypoints (N, n) evenly spaced over [0, duration] seconds. "cubic" joins them by cubic
 /// Hermite segments with central-difference tangents and zero velocity at both ends (C¹);
 /// "linear" is piecewise linear (the original's reference). Before 0 the start is held, after
-/// `duration` the goal, both at rest.
+/// `duration` the goal, both at rest. `duration` lies in [10⁻⁴·(N − 1), 10⁶] s (at least
+/// 0.1 ms between waypoints: shorter gave infinite accelerations).
 #[pyclass(name = "TimedTrajectory", module = "phri._phri")]
 pub struct PyTimedTrajectory {
     traj: TimedTrajectory,

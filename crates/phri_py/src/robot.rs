@@ -189,8 +189,9 @@ impl PyRobot {
         self.frames.cup.as_deref()
     }
 
-    /// A copy of this robot carrying a rigid payload at `frame`: `mass` [kg], `com` its centre of
-    /// mass in that frame [m] (default the frame origin), `inertia` 3×3 about the com [kg·m²].
+    /// A copy of this robot carrying a rigid payload at `frame`: `mass` [kg] in [0, 1000], `com`
+    /// its centre of mass in that frame [m], within ±10 m per axis (default the frame origin),
+    /// `inertia` 3×3 about the com [kg·m²].
     #[pyo3(signature = (frame, mass, com=None, inertia=None))]
     fn with_payload(&self, frame: &str, mass: f64, com: Option<ArrayIn<'_>>, inertia: Option<ArrayIn<'_>>) -> PyResult<Self> {
         let id = self.frame(frame)?;

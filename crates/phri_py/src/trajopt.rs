@@ -126,8 +126,8 @@ impl PyTrajoptInfo {
     }
 }
 
-/// Trajectory optimisation over `waypoints` rows with fixed start and goal and the joint limits
-/// as bounds, safe by default:
+/// Trajectory optimisation over `waypoints` rows (3 to `MAX_WAYPOINTS` = 10,000: memory and time
+/// grow with them) with fixed start and goal and the joint limits as bounds, safe by default:
 /// - Speed limits: `max_step` [rad] bounds each joint's move between waypoints. Without it, with
 ///   `speed_limits` (the default) it is `speed_fraction` × the robot's velocity limits × the
 ///   waypoint spacing `duration`/(waypoints − 1), so `duration` [s] (how long the plan is

@@ -1242,3 +1242,27 @@ def test_a_cylinder_far_longer_than_thick_is_covered_by_a_bounded_number_of_sphe
     assert np.ptp(centers[:, 2]) + 2 * radii.max() >= 1.0  # the spheres still span the cylinder
     with pytest.raises(ex.UrdfError, match=r"not a distance in \(0, 1000\] m"):
         phri.Robot.from_urdf_string(_one_cylinder_link("1e200", "1"))
+
+
+def test_urdf_parsing_releases_the_gil() -> None:
+    """Other Python threads run while a description is read (it held the GIL: issue 16 #14)."""
+    import threading
+
+    text = (importlib.resources.files("phri") / "robots" / "jaco2" / "j2s7s300.urdf").read_text()
+    big = text.replace("<robot", "<!--" + "x" * (10 << 20) + "-->\n<robot", 1)
+    count, stop = [0], threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            count[0] += 1
+
+    thread = threading.Thread(target=spin)
+    thread.start()
+    try:
+        before = count[0]
+        phri.Robot.from_urdf_string(big)
+        during = count[0] - before
+    finally:
+        stop.set()
+        thread.join()
+    assert during > 1000, f"the other thread ran {during} steps while the URDF was parsed"

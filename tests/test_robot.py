@@ -1245,24 +1245,34 @@ def test_a_cylinder_far_longer_than_thick_is_covered_by_a_bounded_number_of_sphe
 
 
 def test_urdf_parsing_releases_the_gil() -> None:
-    """Other Python threads run while a description is read (it held the GIL: issue 16 #14)."""
+    """Other Python threads run while a description is read (it held the GIL: issue 16 #14). The
+    other thread notes the time as it runs; with the GIL held it could note none while the call is
+    in the middle of its work."""
     import threading
+    import time
 
     text = (importlib.resources.files("phri") / "robots" / "jaco2" / "j2s7s300.urdf").read_text()
-    big = text.replace("<robot", "<!--" + "x" * (10 << 20) + "-->\n<robot", 1)
-    count, stop = [0], threading.Event()
+    big = text.replace("<robot", "<!--" + "x" * (20 << 20) + "-->\n<robot", 1)
+    seen: list[float] = []
+    stop = threading.Event()
 
     def spin() -> None:
         while not stop.is_set():
-            count[0] += 1
+            seen.append(time.perf_counter())
+            for _ in range(200):
+                pass
 
     thread = threading.Thread(target=spin)
     thread.start()
     try:
-        before = count[0]
+        time.sleep(0.05)
+        start = time.perf_counter()
         phri.Robot.from_urdf_string(big)
-        during = count[0] - before
+        end = time.perf_counter()
     finally:
         stop.set()
         thread.join()
-    assert during > 1000, f"the other thread ran {during} steps while the URDF was parsed"
+    margin = 0.2 * (end - start)
+    inside = [t for t in seen if start + margin < t < end - margin]
+    assert end - start > 0.05, "the parse was too short to tell"
+    assert inside, f"the other thread did not run during the {end - start:.2f} s parse"

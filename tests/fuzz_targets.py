@@ -283,6 +283,18 @@ def _path_variants() -> st.SearchStrategy[Any]:
     )
 
 
+def _use_trajectory(*, times: Any, t: Any, waypoints: Any, speed_limits: Any) -> Any:
+    tr = phri.TimedTrajectory(np.linspace(Q_MID, Q_MID + 0.5, 11), 5.0)
+    return (
+        tr.sample_many(times),
+        tr.index_at(t),
+        tr.switch_to(waypoints, t, speed_limits),
+        tr.sample_many(times),
+        tr.sample(t),
+        tr.sample_plan(t=t),
+    )
+
+
 TRAJ = arrays((None, N), -2.0, 2.0)
 VEC = arrays((N,))
 BATCH = st.one_of(arrays((N,)), arrays((None, N)))
@@ -459,15 +471,9 @@ TARGETS: dict[str, Target] = {
             "t": scalars(-5, 40),
         },
     ),
-    "TimedTrajectory.use": Target(
-        lambda: phri.TimedTrajectory(np.linspace(Q_MID, Q_MID + 0.5, 11), 5.0),
-        lambda tr, **kw: (
-            tr.sample_many(kw["times"]),
-            tr.index_at(kw["t"]),
-            tr.switch_to(kw["waypoints"], kw["t"], kw["speed_limits"]),
-            tr.sample(kw["t"]),
-            tr.sample_plan(t=kw["t"]),
-        ),
+    "TimedTrajectory.use": Target(  # a fresh trajectory per example: the same input, the same outcome
+        lambda: None,
+        lambda _, **kw: _use_trajectory(**kw),
         {
             "times": arrays((None,), -5, 40),
             "t": scalars(-5, 40),
@@ -562,9 +568,9 @@ TARGETS: dict[str, Target] = {
         },
         weight=0.5,
     ),
-    "Learner.observe": Target(
-        _learner,
-        lambda ln, **kw: (ln.observe(**kw), ln.reference(kw["t"])),
+    "Learner.observe": Target(  # a fresh learner per example
+        lambda: None,
+        lambda _, **kw: ((ln := _learner()).observe(**kw), ln.reference(kw["t"])),
         {"t": scalars(-1, 10), "tau_measured": VEC},
         weight=0.5,
     ),

@@ -226,3 +226,17 @@ def test_collision_spheres_given_by_the_user_are_bounded() -> None:
             "tool", frame, np.zeros((1024, 3)), np.full(1024, 0.01)
         ).collision_bodies
     )
+
+
+def test_a_subnormal_speed_limit_is_refused_not_a_nan_reference() -> None:
+    """Found by the fuzz suite: switch_to with speed limits of 5e-324 rad/s blended for ever, and
+    the reference was NaN from then on."""
+    robot = phri.Robot.jaco2()
+    q = (robot.lower_limits.clip(-3, 3) + robot.upper_limits.clip(-3, 3)) / 2
+    trajectory = phri.TimedTrajectory(np.linspace(q, q + 0.5, 11), 5.0)
+    with pytest.raises(
+        InvalidParameterError, match=r"^speed_limits \[0\] must be at least 1e-6 rad/s, got 5e-324"
+    ):
+        trajectory.switch_to(np.linspace(q, q + 0.9, 11), 1.0, np.full(7, 5e-324))
+    assert np.isfinite(trajectory.switch_to(np.linspace(q, q + 0.9, 11), 1.0, np.full(7, 1e-6)))
+    assert all(np.isfinite(a).all() for a in trajectory.sample_many([0.0, 7.0, 23.0]))

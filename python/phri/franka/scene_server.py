@@ -52,6 +52,8 @@ logger = logging.getLogger(__name__)
 
 #: The simulator's step [s] (franky-sim's, one libfranka tick).
 TICK = 1e-3
+#: Connections the command port queues while one is being served.
+LISTEN_BACKLOG = 8
 #: Colours of scene bodies (RGBA): furniture, the person.
 FURNITURE_RGBA = "0.55 0.4 0.25 1"
 PERSON_RGBA = "0.9 0.7 0.55 0.6"
@@ -131,8 +133,8 @@ def _vec(values: Any) -> str:
 
 
 class Push:
-    """The participant's push on the simulated FR3: a pre-step callback that applies it and keeps
-    the external torque an FR3 would estimate (libfranka's sign)."""
+    """The participant's push on the simulated FR3: a pre-step callback that applies it, and a
+    post-step one that keeps the external torque an FR3 would estimate (libfranka's sign)."""
 
     def __init__(self, make_person: Callable[[], Any] | None, robot: Any) -> None:
         self.make_person = make_person
@@ -182,32 +184,49 @@ class Push:
         return d.xpos[self.hand] + d.xmat[self.hand].reshape(3, 3) @ self.tcp_in_hand
 
     def __call__(self, sim: Any) -> None:
-        m, d = self._model, self.robot.data
+        """Before a physics step: the person's wrench for this tick, applied to the hand."""
+        d = self.robot.data
         d.xfrc_applied[self.hand] = 0.0
-        for kept in (self.wrench, self.tau_ext, self.o_f_ext, self.k_f_ext):
-            kept[:] = 0.0
+        self.wrench[:] = 0.0
         if self.t is None:
             return
         t = self.t
         self.t = t + TICK
         if self.person is None:
             return
-        q = d.qpos[self.qpos]
-        push = self.person.wrench(t, q)
+        push = self.person.wrench(t, d.qpos[self.qpos])
         if push is None:
             return
         force, torque = (np.asarray(v, dtype=float) for v in push)
-        mujoco.mj_kinematics(m, d)  # positions of this step's q (the last step's are one tick old)
+        self._kinematics()  # this step's positions (the last step's are one tick old)
         point = self.tool_point()
         # xfrc_applied acts at the body's centre of mass: the same wrench, moved there.
         d.xfrc_applied[self.hand, :3] = force
         d.xfrc_applied[self.hand, 3:] = torque + np.cross(point - d.xipos[self.hand], force)
-        mujoco.mj_jac(m, d, self._jacp, self._jacr, point, self.hand)
         self.wrench[:3], self.wrench[3:] = force, torque
+
+    def estimate(self, sim: Any) -> None:
+        """After a physics step: the external torque and wrench the robot reports with the state
+        of the step's end (libfranka's signs: what the robot exerts on its surroundings)."""
+        for kept in (self.tau_ext, self.o_f_ext, self.k_f_ext):
+            kept[:] = 0.0
+        if not self.wrench.any():
+            return
+        m, d = self._model, self.robot.data
+        self._kinematics()
+        point = self.tool_point()
+        mujoco.mj_jac(m, d, self._jacp, self._jacr, point, self.hand)
+        force, torque = self.wrench[:3], self.wrench[3:]
         self.tau_ext[:] = -(self._jacp[:, self.dofs].T @ force + self._jacr[:, self.dofs].T @ torque)
         self.o_f_ext[:] = -self.wrench
         rotation = d.xmat[self.hand].reshape(3, 3)  # the hand body's axes are the EE's (F_T_EE)
         self.k_f_ext[:3], self.k_f_ext[3:] = rotation.T @ -force, rotation.T @ -torque
+
+    def _kinematics(self) -> None:
+        """MuJoCo's positions and joint axes for the current q (mj_jac reads mj_comPos's axes)."""
+        m, d = self._model, self.robot.data
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
 
 
 class SceneRobotServer(_RobotServer):
@@ -224,6 +243,13 @@ class SceneRobotServer(_RobotServer):
         # franky-sim acknowledges error recovery without an error state; phri's clears the reflex.
         commands = self._FrankaServer__command_class_map
         commands[_protocol.RobotCommand.kAutomaticErrorRecovery] = _RecoveryCommand
+
+    def init(self) -> None:
+        super().init()
+        # franky-sim listens with a backlog of one: a client's connection arriving while a port
+        # probe (phri's FrankaBackend and SimServer probe first) waits to be accepted was dropped,
+        # and libfranka gave up after its 1 s timeout. Listening again only deepens the queue.
+        self._FrankaServer__server_socket.listen(LISTEN_BACKLOG)
 
     # -- motions -------------------------------------------------------------------------------
 
@@ -333,6 +359,7 @@ class SceneServer(_SimulationServer):
         self.sim.start()
         self.push.attach()
         self.sim.register_pre_step_callback(self.push)
+        self.sim.register_post_step_callback(self.push.estimate)
 
     def cleanup(self) -> None:
         try:
@@ -387,7 +414,11 @@ class SceneServer(_SimulationServer):
         for rs in self.robot_servers:
             rs.process_commands()
         steps = max(1, self.late_ticks)
-        for _ in range(steps):
+        for step in range(steps):
+            if step:  # a tick the client does not hear: no command arrives, the last one holds
+                for rs in self.robot_servers:
+                    rs._pre_process_commands()
+                    rs._post_process_commands()
             self.sim.step()
         if steps > 1:
             # The robot's clock (libfranka's time is the state's message id) runs on unheard.

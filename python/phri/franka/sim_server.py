@@ -98,6 +98,7 @@ class SimServer:
         seed: int = 0,
         person: bool = True,
         faults: Sequence[str] = (),
+        log_protocol: bool = False,
     ) -> None:
         from phri.franka.faults import Fault
 
@@ -105,7 +106,7 @@ class SimServer:
         self.realtime = check_realtime(realtime)
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
             raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
-        self.task, self.seed, self.person = task, seed, person
+        self.task, self.seed, self.person, self.log_protocol = task, seed, person, log_protocol
         self.faults = [Fault.parse(f).spec() for f in faults]
         self.process: subprocess.Popen[bytes] | None = None
         #: The server's output lines (the latest KEPT_LINES): its ready line, injected faults.
@@ -119,6 +120,8 @@ class SimServer:
             command += ["--task", str(self.task)]
         if not self.person:
             command.append("--no-person")
+        if self.log_protocol:
+            command.append("--log-protocol")
         for fault in self.faults:
             command += ["--fault", fault]
         return command
@@ -207,6 +210,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fault", action="append", default=[], metavar="KIND[:ARG][@T]",
                         help="inject a fault (repeatable): reflex[:ERRORS], nan[:q|dq|tau_ext], late:N, "
                         "stall:S, drop; @T is robot time [s] into the torque-control motion")  # fmt: skip
+    parser.add_argument("--log-protocol", action="store_true",
+                        help="log franky-sim's protocol events (connections, commands)")  # fmt: skip
     parser.add_argument("--control-stdin", action="store_true",
                         help="read faults, one per line, from stdin (the control channel)")  # fmt: skip
 
@@ -221,6 +226,13 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise InvalidParameterError(f"--seed must be >= 0, got {args.seed}")
     faults = [Fault.parse(f) for f in args.fault]
+    if args.log_protocol:
+        import logging
+
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(relativeCreated)8.0f ms %(name)s: %(message)s"))
+        logging.getLogger("franky_sim").addHandler(handler)
+        logging.getLogger("franky_sim").setLevel(logging.DEBUG)
     task = fr3_task(args.task) if args.task is not None else None
     serve(
         args.host,

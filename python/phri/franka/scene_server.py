@@ -202,7 +202,13 @@ class Push:
         point = self.tool_point()
         # xfrc_applied acts at the body's centre of mass: the same wrench, moved there.
         d.xfrc_applied[self.hand, :3] = force
-        d.xfrc_applied[self.hand, 3:] = torque + np.cross(point - d.xipos[self.hand], force)
+        r = point - d.xipos[self.hand]
+        moment = (
+            r[1] * force[2] - r[2] * force[1],
+            r[2] * force[0] - r[0] * force[2],
+            r[0] * force[1] - r[1] * force[0],
+        )
+        d.xfrc_applied[self.hand, 3:] = torque + moment  # r × f by hand: np.cross costs 0.1 ms
         self.wrench[:3], self.wrench[3:] = force, torque
 
     def estimate(self, sim: Any) -> None:
@@ -426,7 +432,9 @@ class SceneServer(_SimulationServer):
             self.late_ticks = 0
         for rs in self.robot_servers:
             rs.send_state()
-        time.sleep(max(0.0, 0.001 * float(realtime) - (time.time() - start_time)))
+        remaining = 0.001 * float(realtime) - (time.time() - start_time)
+        if remaining > 0:  # a tick already late does not yield the processor (sleep(0) did)
+            time.sleep(remaining)
 
 
 def build_server(

@@ -22,7 +22,7 @@ import pytest
 
 from phri import Robot
 from phri.config import load_task
-from phri.exceptions import ConfigError, ConnectionLostError, InvalidParameterError
+from phri.exceptions import ConfigError, ConnectionLostError, InvalidParameterError, RobotFaultError
 from phri.franka import FrankaBackend, fault_message
 from phri.franka.faults import ERROR_NAMES, Fault
 from phri.franka.sim_server import READY, SimServer, fr3_task
@@ -234,6 +234,26 @@ def test_a_reflex_aborts_control_with_its_errors_and_start_recovers(faults_serve
     assert fault is None and len(times) == 50
 
 
+def test_the_user_stop_aborts_control_and_refuses_a_start_until_released(faults_server: SimServer) -> None:
+    times, fault = control(faults_server, 2000, "user_stop:0.3@0.05")
+    assert fault is not None and 45 <= len(times) <= 50
+    assert fault == (
+        "the robot aborted control: libfranka: Move command aborted: User Stop pressed!; the user stop "
+        "is pressed; release it, then restart the episode"
+    )
+    with pytest.raises(
+        RobotFaultError, match=r"robot mode UserStopped: .*automatic error recovery was refused"
+    ):
+        control(faults_server, 10)
+    robot = pylibfranka.Robot(faults_server.host, pylibfranka.RealtimeConfig.kIgnore)
+    deadline = time.monotonic() + 30
+    while robot.read_once().robot_mode == pylibfranka.RobotMode.UserStopped:  # 0.3 s of robot time
+        assert time.monotonic() < deadline
+    del robot
+    times, fault = control(faults_server, 50)
+    assert fault is None and len(times) == 50
+
+
 def test_a_nan_in_the_state_is_a_fault_naming_it(faults_server: SimServer) -> None:
     times, fault = control(faults_server, 2000, "nan:dq@0.05")
     assert 45 <= len(times) <= 50
@@ -266,7 +286,15 @@ def test_a_dropped_or_stalled_link_is_a_lost_connection(faults_server: SimServer
 def test_faults_are_parsed_and_refused_clearly() -> None:
     assert Fault.parse("reflex") == Fault("reflex", errors=("joint_reflex",))
     assert Fault.parse(" late:5@1.5 ") == Fault("late", 1.5, ticks=5)
-    for spec in ("reflex:cartesian_reflex@0.25", "nan:tau_ext", "late:3", "stall:0.5@2", "drop@0"):
+    assert Fault.parse("user_stop") == Fault("user_stop", seconds=1.0)
+    for spec in (
+        "reflex:cartesian_reflex@0.25",
+        "user_stop:2",
+        "nan:tau_ext",
+        "late:3",
+        "stall:0.5@2",
+        "drop@0",
+    ):
         assert Fault.parse(spec).spec() == spec
     for spec, message in [
         ("reflex:joint_wobble", "unknown libfranka error joint_wobble"),
@@ -274,7 +302,8 @@ def test_faults_are_parsed_and_refused_clearly() -> None:
         ("late:1", r"late:N takes a whole number of ticks in \[2,"),
         ("late:x", "late:N .ticks. must be a number"),
         ("stall:0", r"stall:S takes seconds in \(0, 60\]"),
-        ("drop:1", "KIND one of reflex, nan, late, stall, drop"),
+        ("drop:1", "KIND one of reflex, user_stop, nan, late, stall, drop"),
+        ("user_stop:-1", r"user_stop:S takes seconds in \(0, 60\]"),
         ("reflex@-1", "@T must be a robot time >= 0 s"),
         ("nan@inf", "must be finite"),
     ]:

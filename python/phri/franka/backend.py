@@ -190,8 +190,15 @@ class FrankaBackend:
         self._robot, self._t0, self._fault = robot, None, None
         try:
             state = robot.read_once()
-            if fault_message(state) is not None:
-                robot.automatic_error_recovery()
+            pending = fault_message(state)
+            if pending is not None:
+                try:
+                    robot.automatic_error_recovery()
+                except self._franka.CommandException as e:
+                    self.stop()
+                    raise RobotFaultError(
+                        f"host {self.host!r}: {pending}; phri's automatic error recovery was refused: {e}"
+                    ) from None
             th = self.thresholds
             robot.set_collision_behavior(th.joint_lower, th.joint_upper, th.force_lower, th.force_upper)
             if self.load is not None:
@@ -223,9 +230,9 @@ class FrankaBackend:
         except self._franka.NetworkException as e:
             raise ConnectionLostError(f"host {self.host!r}: the robot stopped answering: {e}") from None
         except self._franka.ControlException as e:
-            self._fault = self._state(
-                None, fault=f"the robot aborted control: {e}; {MODE_RECOVERY['Reflex']}"
-            )
+            # libfranka's message says why (a reflex and its errors, or the user stop).
+            mode = "UserStopped" if "User Stop" in str(e) else "Reflex"
+            self._fault = self._state(None, fault=f"the robot aborted control: {e}; {MODE_RECOVERY[mode]}")
             return self._fault
         return self._state(state)
 

@@ -11,6 +11,10 @@ A fault is written ``KIND[:ARGUMENT][@T]``:
     ``last_motion_errors``, aborts a running motion (the Move command answers ``ReflexAborted``, so
     libfranka raises a ``ControlException`` naming the errors) and holds its position until
     ``automatic_error_recovery()``; a motion started before that is refused.
+``user_stop[:S]``
+    The user stop pressed for S seconds of robot time (default 1): ``UserStopped`` mode, a running
+    motion aborted (``EmergencyAborted``), error recovery and new motions refused; released, the
+    robot is idle again.
 ``nan[:FIELD]``
     One tick's state with NaN in ``q`` (default), ``dq`` or ``tau_ext`` (``tau_ext_hat_filtered``).
 ``late:N``
@@ -84,7 +88,7 @@ ERROR_NAMES: tuple[str, ...] = (
     "base_acceleration_initialization_timeout",
     "base_acceleration_invalid_reading",
 )
-FAULT_KINDS = ("reflex", "nan", "late", "stall", "drop")
+FAULT_KINDS = ("reflex", "user_stop", "nan", "late", "stall", "drop")
 #: State fields a ``nan`` fault can spoil (phri's names; tau_ext is libfranka's tau_ext_hat_filtered).
 NAN_FIELDS = ("q", "dq", "tau_ext")
 #: The longest stall [s] (a longer one only makes a test slower: libfranka gives up well before).
@@ -106,7 +110,7 @@ class Fault:
     field: str = "q"
     #: late: the ticks that pass unheard.
     ticks: int = 0
-    #: stall: the wall time [s] nothing is sent.
+    #: stall: the wall time [s] nothing is sent; user_stop: the robot time [s] it is pressed.
     seconds: float = 0.0
 
     @classmethod
@@ -148,6 +152,13 @@ class Fault:
             if not 0 < seconds <= MAX_STALL:
                 raise InvalidParameterError(f"fault {spec!r}: stall:S takes seconds in (0, {MAX_STALL:g}]")
             return cls("stall", at, seconds=seconds)
+        if kind == "user_stop":
+            seconds = _number(spec, "user_stop:S (seconds)", argument) if argument.strip() else 1.0
+            if not 0 < seconds <= MAX_STALL:
+                raise InvalidParameterError(
+                    f"fault {spec!r}: user_stop:S takes seconds in (0, {MAX_STALL:g}]"
+                )
+            return cls("user_stop", at, seconds=seconds)
         if kind == "drop" and not argument:
             return cls("drop", at)
         raise InvalidParameterError(
@@ -162,6 +173,7 @@ class Fault:
             "nan": self.field,
             "late": str(self.ticks),
             "stall": f"{self.seconds:g}",
+            "user_stop": f"{self.seconds:g}",
         }.get(self.kind, "")
         return (
             self.kind

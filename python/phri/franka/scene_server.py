@@ -243,6 +243,7 @@ class SceneRobotServer(_RobotServer):
         super().__init__(robot, hostname_candidates)
         self.push = push
         self.reflex: tuple[bool, ...] | None = None  # the active errors while in Reflex mode
+        self.user_stop_ticks = 0  # ticks the user stop stays pressed
         self.last_motion_errors: tuple[bool, ...] = (False,) * len(ERROR_NAMES)
         self.nan_field: str | None = None
         self.torque_motion = False
@@ -260,9 +261,9 @@ class SceneRobotServer(_RobotServer):
     # -- motions -------------------------------------------------------------------------------
 
     def start_motion(self, controller_mode: Any, motion_generator_mode: Any, motion_id: int) -> None:
-        if self.reflex is not None:
-            # A robot in Reflex refuses motions until recovered (MoveCommand answers Aborted).
-            raise RuntimeError("the robot is in Reflex mode; call automatic_error_recovery()")
+        if self.reflex is not None or self.user_stop_ticks:
+            # A stopped robot refuses motions (MoveCommand answers Aborted).
+            raise RuntimeError("the robot is in Reflex or UserStopped mode")
         super().start_motion(controller_mode, motion_generator_mode, motion_id)
         self.last_motion_errors = (False,) * len(ERROR_NAMES)
         self.torque_motion = controller_mode == _protocol.MoveCommandControllerMode.kExternalController
@@ -293,18 +294,37 @@ class SceneRobotServer(_RobotServer):
         """The robot's reflex with `errors` set: Reflex mode, the motion aborted (ReflexAborted)."""
         bits = tuple(name in errors for name in ERROR_NAMES)
         self.reflex = self.last_motion_errors = bits
+        self._abort(_protocol.MoveStatus.kReflexAborted)
+
+    def inject_user_stop(self, ticks: int) -> None:
+        """The user stop pressed for `ticks` ticks: UserStopped mode, the motion aborted
+        (EmergencyAborted); released, the robot is idle again without a recovery."""
+        self.user_stop_ticks = max(1, ticks)
+        self._abort(_protocol.MoveStatus.kEmergencyAborted)
+
+    def tick(self) -> None:
+        """One tick passed (the user stop is released when its time is up)."""
+        if self.user_stop_ticks:
+            self.user_stop_ticks -= 1
+
+    def _abort(self, status: Any) -> None:
+        """Aborts a running motion with `status` (libfranka raises a ControlException on it); the
+        arm holds where it is."""
         motion_id = self.current_motion_id
         if motion_id:
-            self.stop_motion(send_preemption_signal=False)  # holds the arm where it is
+            self.stop_motion(send_preemption_signal=False)
             _protocol.BaseCommand.send_response(
-                self._tcp_socket, _protocol.RobotCommand.kMove, motion_id, _protocol.MoveStatus.kReflexAborted
+                self._tcp_socket, _protocol.RobotCommand.kMove, motion_id, status
             )
             self.reset_current_motion_id()
 
-    def recover(self) -> bool:
-        """automatic_error_recovery(): clears the reflex (the last motion's errors stay)."""
+    def recover(self) -> Any:
+        """automatic_error_recovery(): clears a reflex (the last motion's errors stay); refused
+        while the user stop is pressed."""
+        if self.user_stop_ticks:
+            return _protocol.AutomaticErrorRecoveryStatus.kCommandRejectedDueToActivatedSafetyFunctions
         self.reflex = None
-        return True
+        return _protocol.AutomaticErrorRecoveryStatus.kSuccess
 
     def drop(self) -> None:
         """Closes the client's connection (TCP and UDP), as a pulled cable would end it."""
@@ -319,7 +339,9 @@ class SceneRobotServer(_RobotServer):
             "O_F_ext_hat_K": tuple(push.o_f_ext.tolist()),
             "K_F_ext_hat_K": tuple(push.k_f_ext.tolist()),
         }
-        if self.reflex is not None:
+        if self.user_stop_ticks:
+            changes["robot_mode"] = _protocol.RobotMode.kUserStopped
+        elif self.reflex is not None:
             changes.update(
                 robot_mode=_protocol.RobotMode.kReflex, errors=self.reflex, reflex_reason=self.reflex
             )
@@ -334,8 +356,7 @@ class SceneRobotServer(_RobotServer):
 
 class _RecoveryCommand(_Recovery):
     def handle(self, server: Any) -> None:
-        server.recover()
-        self.reply(_protocol.AutomaticErrorRecoveryStatus.kSuccess)
+        self.reply(server.recover())
 
 
 class SceneServer(_SimulationServer):
@@ -404,6 +425,8 @@ class SceneServer(_SimulationServer):
         print(f"fault injected: {fault.spec()} ({when})", file=self.out, flush=True)
         if fault.kind == "reflex":
             server.inject_reflex(fault.errors)
+        elif fault.kind == "user_stop":
+            server.inject_user_stop(round(fault.seconds / TICK))
         elif fault.kind == "nan":
             server.nan_field = fault.field
         elif fault.kind == "late":
@@ -430,6 +453,7 @@ class SceneServer(_SimulationServer):
             # The robot's clock (libfranka's time is the state's message id) runs on unheard.
             self.server._FrankaServer__message_id += steps - 1
             self.late_ticks = 0
+        self.server.tick()
         for rs in self.robot_servers:
             rs.send_state()
         remaining = 0.001 * float(realtime) - (time.time() - start_time)

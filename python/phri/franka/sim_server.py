@@ -208,8 +208,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated participant (default 0)")
     parser.add_argument("--no-person", action="store_true", help="the scene without the participant")
     parser.add_argument("--fault", action="append", default=[], metavar="KIND[:ARG][@T]",
-                        help="inject a fault (repeatable): reflex[:ERRORS], nan[:q|dq|tau_ext], late:N, "
-                        "stall:S, drop; @T is robot time [s] into the torque-control motion")  # fmt: skip
+                        help="inject a fault (repeatable): reflex[:ERRORS], user_stop[:S], "
+                        "nan[:q|dq|tau_ext], late:N, stall:S, drop; @T: robot time [s] into the "
+                        "torque-control motion")  # fmt: skip
     parser.add_argument("--log-protocol", action="store_true",
                         help="log franky-sim's protocol events (connections, commands)")  # fmt: skip
     parser.add_argument("--control-stdin", action="store_true",

@@ -153,34 +153,61 @@ def test_the_push_is_the_persons_wrench_at_the_tool_point(mujoco_fr3: tuple[obje
         push.make_person = None  # type: ignore[attr-defined]
 
 
-def test_the_tasks_scene_is_in_mujoco_where_phri_puts_it() -> None:
-    """Bodies of the FR3 human and laptop tasks compile with the arm: furniture collides, the
-    person is visual only; positions and sizes are the task's."""
+@pytest.mark.parametrize("name", ["fr3_table", "fr3_laptop", "fr3_human", "fr3_coffee"])
+def test_the_tasks_scene_is_in_mujoco_where_phri_puts_it(name: str) -> None:
+    """The task's bodies compile with the arm where phri puts them (furniture collides, the person
+    is visual only), and the plan for the true weights touches nothing in MuJoCo's own meshes of the
+    arm and hand: phri's sphere model keeps it clear in an independent geometry."""
     import xml.etree.ElementTree as ET
 
-    from phri.franka.scene_server import _simulator, mujoco, scene_bodies
+    from phri.franka.scene_server import _franky_sim, _simulator, mujoco, scene_bodies
 
-    for name in ("fr3_human", "fr3_laptop"):
-        task = load_task(name)
-        sim = _simulator.MujocoSimulator(enable_visualization=False)
-        sim.init()
-        sim.add_robot()
-        for body in scene_bodies(task.scene):
-            sim.worldbody.append(body)
-        model = mujoco.MjModel.from_xml_string(ET.tostring(sim.scene, encoding="unicode"))
-        data = mujoco.MjData(model)
+    task = load_task(name)
+    sim = _simulator.MujocoSimulator(enable_visualization=False)
+    sim.init()
+    sim.add_robot()
+    for body in scene_bodies(task.scene):
+        sim.worldbody.append(body)
+    model = mujoco.MjModel.from_xml_string(ET.tostring(sim.scene, encoding="unicode"))
+    sim.cleanup()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    for o in task.scene.objects:
+        g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"phri_{o.name}")
+        assert g >= 0
+        np.testing.assert_allclose(data.geom_xpos[g], o.position, atol=1e-9)
+        if o.shape == "box":
+            np.testing.assert_allclose(model.geom_size[g], np.asarray(o.size) / 2)
+        if o.shape == "cylinder":
+            np.testing.assert_allclose(model.geom_size[g][:2], [o.radius, o.length / 2])
+        collides = model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0
+        assert collides == (o.kind != "person"), o.name
+    joints = [
+        mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"robot0_fr3_joint{i}") for i in range(1, 8)
+    ]
+    for i in (1, 2):  # the fingers open as franky-sim starts them (closed, they touch each other)
+        finger = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"robot0_finger_joint{i}")
+        data.qpos[model.jnt_qposadr[finger]] = _franky_sim.DEFAULT_HAND_INITIAL_WIDTH / 2
+    for q in _plan(task):
+        data.qpos[model.jnt_qposadr[joints]] = q
         mujoco.mj_forward(model, data)
-        for o in task.scene.objects:
-            g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"phri_{o.name}")
-            assert g >= 0
-            np.testing.assert_allclose(data.geom_xpos[g], o.position, atol=1e-9)
-            if o.shape == "box":
-                np.testing.assert_allclose(model.geom_size[g], np.asarray(o.size) / 2)
-            if o.shape == "cylinder":
-                np.testing.assert_allclose(model.geom_size[g][:2], [o.radius, o.length / 2])
-            collides = model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0
-            assert collides == (o.kind != "person"), o.name
-        sim.cleanup()
+        touching = {
+            tuple(
+                mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, model.geom_bodyid[g])
+                for g in (c.geom1, c.geom2)
+            )
+            for c in data.contact[: data.ncon]
+        }
+        assert not touching, f"{name}: the plan touches {touching} at q={q}"
+
+
+def _plan(task: object) -> np.ndarray:
+    """The plan for `task`'s true weights (phri's planner, as the participant uses it)."""
+    from types import SimpleNamespace
+
+    from phri.sim.episode import Planner
+
+    return Planner(task, SimpleNamespace(model=FR3)).desired  # type: ignore[arg-type]
 
 
 # -- faults over the protocol ----------------------------------------------------------------------
@@ -427,6 +454,8 @@ def test_a_task_for_another_robot_is_a_clear_error(capsys: pytest.CaptureFixture
         ConfigError, match=r"table.toml is posed for robot 'jaco2', but the simulator is an FR3"
     ):
         fr3_task(jaco2_table)
+    with pytest.raises(ConfigError, match="posed for robot 'jaco2'"):
+        SimServer("127.0.15.5", task=jaco2_table)
     assert main(["sim-server", "--task", jaco2_table]) == 2
     assert "use an FR3 task (fr3_coffee, fr3_human, fr3_laptop, fr3_table)" in capsys.readouterr().err
     # Shipped FR3 tasks by their short name or their own.

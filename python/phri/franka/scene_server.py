@@ -28,7 +28,6 @@ What it adds to franky-sim, per 1 ms tick:
 from __future__ import annotations
 
 import importlib
-import logging
 import queue
 import sys
 import threading
@@ -47,8 +46,6 @@ from phri.franka.faults import ERROR_NAMES, Fault
 from phri.franka.sim_server import READY
 
 __all__ = ["build_server", "participant_for", "scene_bodies", "serve"]
-
-logger = logging.getLogger(__name__)
 
 #: The simulator's step [s] (franky-sim's, one libfranka tick).
 TICK = 1e-3
@@ -140,8 +137,8 @@ class Push:
         self.make_person = make_person
         self.robot = robot  # franky-sim's FrankaMujocoRobot (attached to the scene)
         self.person: Any = None
-        #: The person for the next motion, made ahead (making one samples the desired plan: a few ms
-        #: that must not fall in a motion's first tick).
+        #: The person for the next motion, made ahead (making one samples the desired plan at 1 kHz:
+        #: tens of ms that must not fall in a motion's first tick).
         self.next_person: Any = None
         #: Robot time [s] since the current torque-control motion started (None: none runs).
         self.t: float | None = None

@@ -106,6 +106,8 @@ class SimServer:
         self.realtime = check_realtime(realtime)
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
             raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
+        if task is not None:
+            fr3_task(task)  # a missing or wrong task is a ConfigError here, not a dead child
         self.task, self.seed, self.person, self.log_protocol = task, seed, person, log_protocol
         self.faults = [Fault.parse(f).spec() for f in faults]
         self.process: subprocess.Popen[bytes] | None = None

@@ -28,8 +28,8 @@ What it adds to franky-sim, per 1 ms tick:
 from __future__ import annotations
 
 import importlib
+import logging
 import queue
-import sys
 import threading
 import time
 import xml.etree.ElementTree as ET
@@ -46,6 +46,16 @@ from phri.franka.faults import ERROR_NAMES, Fault
 from phri.franka.sim_server import READY
 
 __all__ = ["build_server", "participant_for", "scene_bodies", "serve"]
+
+#: Where the server reports (its ready line, injected and refused faults): one line per call.
+Report = Callable[[str], None]
+logger = logging.getLogger(__name__)
+
+
+def _log(line: str) -> None:
+    """The default report: phri's log (the command line prints instead)."""
+    logger.info(line)
+
 
 #: The simulator's step [s] (franky-sim's, one libfranka tick).
 TICK = 1e-3
@@ -366,13 +376,13 @@ class SceneServer(_SimulationServer):
         push: Push,
         schedule: Sequence[Fault] = (),
         channel: queue.SimpleQueue[Fault] | None = None,
-        out: TextIO | None = None,
+        report: Report | None = None,
     ) -> None:
         super().__init__(sim, hostname_candidates=[host])
         self.push = push
         self.pending = list(schedule)
         self.channel = channel
-        self.out = out or sys.stdout
+        self.report = report or _log
         self.late_ticks = 0
 
     def init(self) -> None:
@@ -419,7 +429,7 @@ class SceneServer(_SimulationServer):
         server = self.server
         t = self.push.t
         when = f"robot time {t:.3f} s into the motion" if t is not None else "no motion running"
-        print(f"fault injected: {fault.spec()} ({when})", file=self.out, flush=True)
+        self.report(f"fault injected: {fault.spec()} ({when})")
         if fault.kind == "reflex":
             server.inject_reflex(fault.errors)
         elif fault.kind == "user_stop":
@@ -466,7 +476,7 @@ def build_server(
     person: bool = True,
     faults: Sequence[Fault] = (),
     channel: queue.SimpleQueue[Fault] | None = None,
-    out: TextIO | None = None,
+    report: Report | None = None,
 ) -> SceneServer:
     """The scene server for `task` (None: the bare FR3 at franky-sim's default pose) on `host`, not
     started (use it as a context manager, then ``run_async``/``run_forever``). The arm starts at the
@@ -486,10 +496,10 @@ def build_server(
             sim.worldbody.append(body)
         model = Robot.fr3()
         make_person = participant_for(task, model, seed) if person else None
-    return SceneServer(sim, host, Push(make_person, robot), faults, channel, out)
+    return SceneServer(sim, host, Push(make_person, robot), faults, channel, report)
 
 
-def read_channel(stream: TextIO, channel: queue.SimpleQueue[Fault], out: TextIO) -> None:
+def read_channel(stream: TextIO, channel: queue.SimpleQueue[Fault], report: Report) -> None:
     """The control channel: one fault per line of `stream` (e.g. ``reflex:joint_velocity_violation``),
     queued for the next tick; a bad line is answered with the reason and ignored."""
     for line in stream:
@@ -498,7 +508,7 @@ def read_channel(stream: TextIO, channel: queue.SimpleQueue[Fault], out: TextIO)
         try:
             channel.put(Fault.parse(line))
         except InvalidParameterError as e:
-            print(f"fault refused: {e}", file=out, flush=True)
+            report(f"fault refused: {e}")
 
 
 def serve(
@@ -510,19 +520,19 @@ def serve(
     person: bool = True,
     faults: Sequence[Fault] = (),
     control: TextIO | None = None,
-    out: TextIO | None = None,
+    report: Report | None = None,
     stop: threading.Event | None = None,
 ) -> None:
     """Serves the scene on `host` until interrupted (Ctrl-C) or `stop` is set; `realtime` slows the
     simulation down (2: each 1 ms tick takes 2 ms of wall time). Faults come from the schedule
     `faults` and, one per line, from `control` (the control channel; None: none)."""
-    out = out or sys.stdout
+    report = report or _log
     channel: queue.SimpleQueue[Fault] = queue.SimpleQueue()
     with build_server(
-        host, task=task, seed=seed, person=person, faults=faults, channel=channel, out=out
+        host, task=task, seed=seed, person=person, faults=faults, channel=channel, report=report
     ) as server:
         if control is not None:
-            threading.Thread(target=read_channel, args=(control, channel, out), daemon=True).start()
+            threading.Thread(target=read_channel, args=(control, channel, report), daemon=True).start()
         # The loop first, then the line: a client that connects on it finds the server ticking.
         server.run_async(realtime)
         time.sleep(0.05)
@@ -531,11 +541,7 @@ def serve(
             if task is None
             else f"task {task.name}" + (f", participant seed {seed}" if person else ", no participant")
         )
-        print(
-            f"{READY} {host} ({scene}, {realtime:g}x slower than real time); Ctrl-C stops it",
-            flush=True,
-            file=out,
-        )
+        report(f"{READY} {host} ({scene}, {realtime:g}x slower than real time); Ctrl-C stops it")
         try:
             while server.async_thread is not None and server.async_thread.is_alive():
                 if stop is not None and stop.is_set():

@@ -245,6 +245,7 @@ def run(args: argparse.Namespace) -> int:
         person=not args.no_person,
         faults=faults,
         control=sys.stdin if args.control_stdin else None,
+        report=lambda line: print(line, flush=True),  # the ready line SimServer and users wait for
     )
     return 0
 

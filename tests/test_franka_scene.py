@@ -248,7 +248,7 @@ def test_every_error_name_reaches_pylibfranka_as_itself(faults_server: SimServer
 
 def test_a_reflex_aborts_control_with_its_errors_and_start_recovers(faults_server: SimServer) -> None:
     times, fault = control(faults_server, 2000, "reflex:joint_velocity_violation,joint_reflex@0.1")
-    assert fault is not None and 95 <= len(times) <= 100
+    assert fault is not None and 0.09 <= times[-1] <= 0.1  # on the robot's clock, whatever the load
     assert 'motion aborted by reflex! ["joint_velocity_violation", "joint_reflex"]' in fault
     assert "automatic_error_recovery()" in fault
     # The robot stays in Reflex; a new start sees it, recovers and controls again.
@@ -263,7 +263,7 @@ def test_a_reflex_aborts_control_with_its_errors_and_start_recovers(faults_serve
 
 def test_the_user_stop_aborts_control_and_refuses_a_start_until_released(faults_server: SimServer) -> None:
     times, fault = control(faults_server, 2000, "user_stop:0.3@0.05")
-    assert fault is not None and 45 <= len(times) <= 50
+    assert fault is not None and 0.04 <= times[-1] <= 0.05
     assert fault == (
         "the robot aborted control: libfranka: Move command aborted: User Stop pressed!; the user stop "
         "is pressed; release it, then restart the episode"
@@ -283,7 +283,7 @@ def test_the_user_stop_aborts_control_and_refuses_a_start_until_released(faults_
 
 def test_a_nan_in_the_state_is_a_fault_naming_it(faults_server: SimServer) -> None:
     times, fault = control(faults_server, 2000, "nan:dq@0.05")
-    assert 45 <= len(times) <= 50
+    assert 0.04 <= times[-1] <= 0.05
     assert fault is not None and fault.startswith("the robot's state has non-finite values (dq[0]=nan, ")
     assert "q[0]" not in fault.replace("dq[0]", "")
 

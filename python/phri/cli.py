@@ -78,6 +78,15 @@ def _tasks(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sim_server(args: argparse.Namespace) -> int:
+    from phri._extras import require
+
+    require("franky_sim", "phri sim-server")
+    from phri.franka.sim_server import run
+
+    return run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="phri", description="Learning robot objectives from physical human interaction."
@@ -92,6 +101,15 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(run=_demo)
     tasks = sub.add_parser("tasks", help="list the shipped tasks")
     tasks.set_defaults(run=_tasks)
+    from phri.franka.sim_server import DEFAULT_HOST, add_arguments
+
+    sim_server = sub.add_parser(
+        "sim-server",
+        help=f"franky-sim's FR3 with a task's scene and simulated participant on a loopback address "
+        f"(default {DEFAULT_HOST}) until Ctrl-C",
+    )
+    add_arguments(sim_server)
+    sim_server.set_defaults(run=_sim_server)
     from phri.study.cli import register as register_study
 
     register_study(sub)

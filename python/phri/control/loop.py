@@ -326,8 +326,8 @@ class ControlLoop:
         log = _Log(rows, n)
         result = self.result = LoopResult()
         self.safety.reset(np.zeros(n) if self.backend.gravity_compensated else None)
+        # Garbage frozen now is collected after the run (unfreeze returns it to the oldest generation).
         enabled, froze = gc.isenabled(), gc.get_freeze_count() == 0
-        gc.collect()
         gc.freeze()
         gc.disable()
         try:

@@ -587,3 +587,46 @@ def test_a_safety_stop_in_an_episode_holds_the_arm_and_writes_the_log_with_the_s
     # And the impedance law holds the arm there: it comes to rest within millimetres of radians.
     assert np.abs(q[-1] - event.q).max() < 0.01
     assert np.abs(qd[-1]).max() < 0.02
+
+
+# -- the loop over libfranka's protocol ---------------------------------------------------------
+
+
+def test_the_loop_holds_a_franka_over_libfrankas_protocol() -> None:
+    """The same loop over FrankaBackend against franky-sim (on loopback, slowed down): the robot
+    compensates gravity, so the command is the law's torque less g(q), its rate limited from zero."""
+    pytest.importorskip("pylibfranka", reason="phri[franka] is part of make dev")
+    from phri.franka import FrankaBackend
+    from phri.franka.sim_server import SimServer
+
+    robot = phri.Robot.fr3()
+
+    class Recording(FrankaBackend):
+        """Remembers the first state: the pose the learner below holds."""
+
+        def start(self, q_start: np.ndarray) -> RobotState:
+            self.first = super().start(q_start)
+            return self.first
+
+    class HoldFirst(StillLearner):
+        def reference(self, t, *, out):
+            out[0][:] = backend.first.q
+            out[1][:] = 0.0
+            out[2][:] = 0.0
+            return out
+
+    # libfranka's joint impedance example's gains [N·m/rad], [N·m·s/rad].
+    controller = phri.ImpedanceController(
+        robot, stiffness=[600, 600, 600, 600, 250, 150, 50], damping=[50, 50, 50, 20, 20, 20, 10]
+    )
+    with SimServer("127.0.0.61", realtime=4.0) as server:
+        backend = Recording(server.host, robot, realtime=False)
+        loop = ControlLoop(backend, HoldFirst(), controller, safety_limits(robot, "fr3"))
+        result = loop.run(np.zeros(7), 0.3)
+    assert result.stop is None and result.ticks >= 290
+    log = result.log
+    assert np.all(np.isfinite(log["tau"])) and np.all(np.isfinite(log["tau_ext"]))
+    np.testing.assert_allclose(log["q"], np.tile(backend.first.q, (len(log["q"]), 1)), atol=0.01)
+    # The torque applied is g(q) plus the small spring and damper torques: the command held it.
+    gravity = np.array([robot.gravity(q) for q in log["q"]])
+    assert np.abs(log["tau"] - gravity).max() < 5.0

@@ -406,9 +406,11 @@ class ControlLoop:
         result.stop = stop.event
         result.error = SafetyStopError(str(stop.event), stop.event)
         if stop.hold:
-            self._hold(state, k, result, log, next_row)
+            self._hold(state, k, result, log, next_row, wall_row)
 
-    def _hold(self, state: RobotState, k: int, result: LoopResult, log: _Log, next_row: float) -> None:
+    def _hold(
+        self, state: RobotState, k: int, result: LoopResult, log: _Log, next_row: float, wall_row: float
+    ) -> None:
         """Holds the position of `state` (the stop's) with the impedance law for the hold time;
         ends early when the state cannot be trusted or the arm stops answering."""
         controller, safety, on_tick = self.controller, self.safety, self.on_tick
@@ -424,11 +426,17 @@ class ControlLoop:
                 controller.torque_implicit(state.q, state.qd, q_ref, qd_ref, period, out=tau)
                 if safety.limit_torque(state.q, tau, command) is not None:
                     return  # a non-finite torque: nothing to hold with
+                wall = controller.wall_force
+                if wall > 0.0:
+                    result.wall_ticks += 1
+                    result.wall_peak_force = max(result.wall_peak_force, wall)
+                    wall_row = max(wall_row, wall)
                 row = -1
                 position = state.t / log_period + GRID_TOLERANCE
                 if position >= next_row:
                     next_row = math.floor(position) + 1.0
-                    row = self._log_row(log, state, controller.wall_force)
+                    row = self._log_row(log, state, wall_row)
+                    wall_row = 0.0
                 if on_tick is not None:
                     on_tick(k, state, row)
                 self.backend.write(command)

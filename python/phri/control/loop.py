@@ -24,7 +24,8 @@ reference becomes the position at the stop with zero velocity, which the impedan
 ``hold_time`` seconds of robot time; then the loop ends the motion and calls ``backend.stop()``.
 When the state cannot be trusted (non-finite q or q̇, a stalled clock) or the arm no longer takes
 commands (lost connection, robot fault) there is nothing to hold with, and the motion ends at once.
-Every stop is a :class:`StopEvent` (the reason and the state that caused it) in the loop's result;
+Every stop is a :class:`StopEvent` (the reason and the state that caused it) in the loop's result
+(and a warning on the ``phri.control.loop`` logger);
 ``run(check=True)`` then raises :class:`~phri.exceptions.SafetyStopError` with it, after the log is
 complete. Any other error ends the motion (``backend.stop()``) and is raised, the log so far kept in
 :attr:`ControlLoop.result`.
@@ -37,6 +38,7 @@ own: the reference, torque and command live in buffers made once; the Rust calls
 from __future__ import annotations
 
 import gc
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -48,6 +50,8 @@ from phri._phri import ImpedanceController, Learner, SafetyViolation
 from phri.control.backend import Backend, RobotState
 from phri.control.safety import LATE_AFTER, LATE_TICKS, SafetyLimits
 from phri.exceptions import ConnectionLostError, InvalidParameterError, RobotFaultError, SafetyStopError
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "HOLD_TIME",
@@ -405,6 +409,7 @@ class ControlLoop:
             stop = _Stop(self._event("robot_fault", str(e), k, state), hold=False)
         result.stop = stop.event
         result.error = SafetyStopError(str(stop.event), stop.event)
+        logger.warning("%s; %s", stop.event, "holding the position" if stop.hold else "ending the motion")
         if stop.hold:
             self._hold(state, k, result, log, next_row, wall_row)
 

@@ -482,7 +482,8 @@ def simulate_episode(
 ) -> tuple[EpisodeResult, BaseException | None]:
     """Simulates one attempt at `task` as :func:`run_episode` does, writing no log: returns the result
     (its `log_arrays` hold the log, in memory) and the error that stopped the simulation early (None
-    if it ran to the end; the result then covers the time simulated). Set-up errors are raised."""
+    if it ran to the end; the result then covers the time simulated, and for a safety stop, a
+    :class:`~phri.exceptions.SafetyStopError`, the hold after it). Set-up errors are raised."""
     config = config or EpisodeConfig()
     for i, ft in enumerate(frame_times):
         if isinstance(ft, bool) or not isinstance(ft, int | float) or not 0 <= ft <= task.duration:
@@ -518,8 +519,11 @@ def run_episode(
 ) -> EpisodeResult:
     """Simulates one attempt at `task` for `task.duration` seconds at the world's time step.
 
-    `log_path` (.npz) receives the compressed time series (also when the simulation fails: the log so
-    far, then the error is raised); `frame_times` [s] are rendered to
+    The episode runs on :class:`phri.control.ControlLoop` over the PyBullet JACO2
+    (:class:`phri.sim.backend.PyBulletBackend`), whose safety layer takes its limits from the robot
+    description and the task (``[safety]``). `log_path` (.npz) receives the compressed time series
+    (also when the simulation fails or the safety layer stops the arm: the log so far, its stop in the
+    ``stop_*`` arrays, then the error is raised); `frame_times` [s] are rendered to
     ``{frame_prefix}_t{t:05.2f}.png`` with PyBullet's software renderer."""
     config = config or EpisodeConfig()
     result, error = simulate_episode(

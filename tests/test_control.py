@@ -622,7 +622,12 @@ def test_the_loop_holds_a_franka_over_libfrankas_protocol() -> None:
     with SimServer("127.0.0.61", realtime=4.0) as server:
         backend = Recording(server.host, robot, realtime=False)
         loop = ControlLoop(backend, HoldFirst(), controller, safety_limits(robot, "fr3"))
-        result = loop.run(np.zeros(7), 0.3)
+        try:
+            result = loop.run(np.zeros(7), 0.3)
+        except ConnectionLostError:
+            # libfranka's own handshake timeout, seen once with the whole suite loading a 2-core
+            # machine: connect once more (a lost connection mid-run is a stop, not this error).
+            result = loop.run(np.zeros(7), 0.3)
     assert result.stop is None and result.ticks >= 290
     log = result.log
     assert np.all(np.isfinite(log["tau"])) and np.all(np.isfinite(log["tau_ext"]))

@@ -601,6 +601,7 @@ fn reset_starts_the_task_again_as_a_fresh_learner() {
 
 #[test]
 fn worker_settings_and_absurd_transition_speeds_are_refused() {
+    let inline_plan = |l: &Learner| l.plan().clone();
     let make = |params: LearnerParams| {
         let (feature, start, goal, gain, upper) = TABLE;
         try_learner(feature, start, goal, gain, upper, UpdateRule::All, params, TrajoptParams::default())
@@ -620,6 +621,22 @@ fn worker_settings_and_absurd_transition_speeds_are_refused() {
             "{speed}"
         );
     }
+    // The same guard on TimedTrajectory::switch_to's own limits (which the learner's come to).
+    let mut plan = inline_plan(&make(LearnerParams::default()).unwrap());
+    let shifted: Vec<f64> = plan.waypoints().iter().map(|v| v + 0.3).collect();
+    for limit in [1e-310, 1e-7, 0.0] {
+        let e = plan.switch_to(&shifted, 3.0, &[limit; 7]).unwrap_err().to_string();
+        assert!(e.starts_with("speed_limits [0] must be a finite speed >= 0.000001 rad/s"), "{e}");
+    }
+    assert!(plan
+        .switch_to(&shifted, 3.0, &[f64::INFINITY; 7])
+        .unwrap_err()
+        .to_string()
+        .starts_with("speed_limits must be finite"));
+    assert!(plan.switch_to(&shifted, 3.0, &[1e-6; 7]).unwrap().is_finite());
+    let (mut q, mut qd, mut qdd) = ([0.0; 7], [0.0; 7], [0.0; 7]);
+    plan.sample(3.5, &mut q, &mut qd, &mut qdd);
+    assert!(q.iter().chain(&qd).chain(&qdd).all(|v| v.is_finite()));
     let l = make(LearnerParams { transition_speed: 1e-3, ..Default::default() }).unwrap();
     assert!(message(Ok(l)).is_empty());
     let inline = make(LearnerParams::default()).unwrap();

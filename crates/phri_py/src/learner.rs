@@ -57,14 +57,15 @@ pub struct PyLearner {
 const _: () = assert!(DEFAULT_TRANSITION_SPEED == 0.8);
 
 /// `value` as a count (an int ≥ 0) for argument `arg`: an InvalidParameterError naming it when out
-/// of range, a TypeError naming it when not an int.
+/// of range, a TypeError (named by PyO3) when not an int.
 fn count(arg: &str, value: &Bound<'_, PyAny>) -> PyResult<usize> {
     match value.extract::<usize>() {
         Ok(v) => Ok(v),
         Err(e) if e.is_instance_of::<PyOverflowError>(value.py()) => {
             Err(error(Kind::InvalidParameter, format!("{arg} must be an integer in [0, {}], got {value}", usize::MAX)))
         }
-        Err(_) => Err(PyTypeError::new_err(format!("{arg} must be an int, got {}", value.get_type()))),
+        // PyO3 prefixes a TypeError with "argument '<arg>': ".
+        Err(_) => Err(PyTypeError::new_err(format!("must be an int, got {}", value.get_type().qualname()?))),
     }
 }
 

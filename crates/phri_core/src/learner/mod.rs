@@ -36,7 +36,7 @@ use crate::deform::Deformation;
 use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::features::FeatureSet;
 use crate::interaction::InteractionDetector;
-use crate::reference::{Interpolation, TimedTrajectory};
+use crate::reference::{Interpolation, TimedTrajectory, MIN_SPEED_LIMIT};
 use crate::trajopt::{TrajectoryOptimizer, TrajoptInfo};
 use crate::update::{relevance, UpdateRule, WeightUpdate};
 
@@ -722,10 +722,13 @@ fn speed_limits(features: &FeatureSet, transition_speed: f64) -> Result<Vec<f64>
         return Ok(Vec::new());
     }
     let limits: Vec<f64> = features.model().velocity_limits().iter().map(|v| v * transition_speed).collect();
-    if let Some((j, v)) = limits.iter().enumerate().find(|(_, v)| !(v.is_normal() && **v > 0.0)) {
+    if let Some((j, v)) = limits.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= MIN_SPEED_LIMIT)) {
         return Err(PhriError::invalid(
             "transition_speed",
-            format!("needs finite velocity limits > 0, but joint {j} allows {v} rad/s; use 0 to switch plans at once"),
+            format!(
+                "gives joint {j} a blend speed limit of {v} rad/s, outside [{MIN_SPEED_LIMIT}, ∞) (its velocity limit times \
+                 transition_speed); use 0 to switch plans at once"
+            ),
         ));
     }
     Ok(limits)

@@ -6,7 +6,7 @@
 //! # Where the replan runs ([`LearnerParams::replan_latency`])
 //! Inline (latency 0, the default), `observe` replans before it returns, as Algorithm 1 is written.
 //! Otherwise `observe` does the microseconds of detect → deform → update on the control thread and
-//! hands the replan to a worker thread ([`worker`]); the control tick never waits for it except in
+//! hands the replan to a worker thread (module `worker`); the control tick never waits for it except in
 //! simulated mode, and its plan is adopted later, blended in as an inline replan's is, from the
 //! reference of the previous `observe` (the last one the controller used):
 //! - [`ReplanLatency::Fixed`]`(L)`, L > 0: a deterministic, simulated latency. The plan is adopted

@@ -740,6 +740,8 @@ def test_times_outside_the_task_or_going_back_are_refused_and_change_nothing(rob
         learner.observe(1.9, tau)
     assert len(learner.history()) == 0 and learner.weights.tolist() == INITIAL
     assert learner.observe(4.0, tau)[:2] == (True, True), "a valid push still learns"
+    assert phri.Learner.TIME_SLACK == 0.01
+    learner.observe(DURATION + phri.Learner.TIME_SLACK, np.zeros(7))
 
 
 @pytest.mark.parametrize("latency", [0.0, TICK], ids=["inline", "one-tick"])

@@ -461,6 +461,8 @@ class Learner:
     after it finished (hardware; ``observe`` never waits). ``observe`` takes t in
     [0, duration + 0.01] s, never going back (``reset()`` starts again)."""
 
+    TIME_SLACK: ClassVar[float]
+
     def __new__(
         cls,
         features: Features,

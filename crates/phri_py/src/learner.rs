@@ -3,7 +3,7 @@
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadwriteArray1, PyUntypedArrayMethods};
-use phri_core::learner::{History, Interaction, Learner, LearnerParams, ReplanLatency, DEFAULT_TRANSITION_SPEED};
+use phri_core::learner::{History, Interaction, Learner, LearnerParams, ReplanLatency, DEFAULT_TRANSITION_SPEED, TIME_SLACK};
 use phri_core::reference::Interpolation;
 use pyo3::exceptions::{PyOverflowError, PyTypeError};
 use pyo3::prelude::*;
@@ -131,6 +131,10 @@ impl PyLearner {
 
 #[pymethods]
 impl PyLearner {
+    /// `observe` accepts times up to this long after the task's duration [s].
+    #[classattr]
+    const TIME_SLACK: f64 = TIME_SLACK;
+
     #[new]
     #[pyo3(signature = (
         features, deformation, update, detector, optimizer, weights, start, goal, *,

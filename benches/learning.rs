@@ -259,7 +259,8 @@ const POLL: Duration = Duration::from_micros(50);
 /// `seeds` seed plans per learned weight),
 /// polling `observe` every [`POLL`] until the plan is adopted. Prints per task the median, p99 and
 /// maximum of the push-to-adoption time; the worker's solve alone (`TrajoptInfo::seconds`) and the
-/// rest (push-to-adoption minus solve, push by push: the worker mode's own cost); the `observe`
+/// rest (push-to-adoption minus solve, push by push: the worker mode's own cost, waking threads on
+/// a shared machine, and with seeds the two cost evaluations that pick the warm start); the `observe`
 /// that took the push; and quiet `observe` calls.
 fn push_to_adoption(sequences: usize, seeds: usize) {
     let model = Arc::new(jaco2_with_cup());

@@ -165,6 +165,27 @@ def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planne
         run_episode(short, world, person, seed=5, planner=planner, log_path=tmp_path / "a.npz")
 
 
+def test_replans_on_the_worker_with_a_one_tick_latency_give_the_inline_episode(world) -> None:
+    """Issue 14: the simulated study replans on the learner's worker thread with a fixed simulated
+    latency; at one tick it reproduces replanning within the tick exactly, and a longer latency
+    adopts each plan that much later, never by the wall clock."""
+    short = shortened(phri.load_task("table"), 3.0, 7)
+    planner = Planner(short, world)
+    person = ParticipantParams(tolerance=0.01, delay=0.05)
+
+    def run(latency: float) -> dict[str, np.ndarray]:
+        config = EpisodeConfig(replan_latency=latency)
+        return run_episode(short, world, person, config, seed=5, planner=planner).log_arrays
+
+    inline, worker, late = run(0.0), run(0.001), run(0.05)
+    assert len(inline["plan_t"]) > 1, "the person never made the robot replan: nothing is compared"
+    for key in inline:
+        np.testing.assert_array_equal(inline[key], worker[key], err_msg=key)
+    # The same first push; its plan takes effect 49 ticks later than at one tick.
+    assert late["interaction_t"][0] == inline["interaction_t"][0]
+    assert late["plan_t"][1] == pytest.approx(inline["plan_t"][1] + 0.049, abs=1e-9)
+
+
 def test_the_log_in_memory_is_the_log_written(world, tmp_path) -> None:
     short = shortened(phri.load_task("coffee"), 1.0, 5)
     planner = Planner(short, world)
@@ -285,6 +306,8 @@ def test_a_task_without_a_scene_plans_clear_of_nothing_but_itself(world) -> None
         (lambda: ParticipantParams(release=1.5), "release must be a fraction of the tolerance"),
         (lambda: EpisodeConfig(sensor_noise=float("inf")), "sensor_noise must be a finite value"),
         (lambda: EpisodeConfig(rule="MAX"), "rule must be one of"),
+        (lambda: EpisodeConfig(replan_latency=-0.001), r"replan_latency must be a time in \[0, 1\] s"),
+        (lambda: EpisodeConfig(replan_latency=float("nan")), "replan_latency must be a time in"),
         (lambda: WorldParams(timestep=0.0), r"timestep must be a number in \[1e-05, 0.01\] s, got 0.0"),
         (lambda: WorldParams(timestep=float("nan")), "timestep must be a number in"),
         (lambda: WorldParams(gravity=1e300), "gravity must be a number in"),

@@ -63,6 +63,8 @@ ORIGINAL_THRESHOLDS = (8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0)
 #: The thresholds of the original's later versions, joints 1..7 [N·m] (used there together with a
 #: subtracted per-joint bias: EpisodeConfig.detector_bias).
 LATER_THRESHOLDS = (4.0, 5.0, 3.0, 4.0, 1.5, 1.5, 1.5)
+#: Longest simulated replan latency an episode accepts [s] (EpisodeConfig.replan_latency).
+MAX_REPLAN_LATENCY = 1.0
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,12 @@ class EpisodeConfig:
     #: fraction of the velocity limits; 0 switches at once as the original did (the arm then snaps
     #: onto the new plan at several times its limits).
     transition_speed: float = 0.8
+    #: The simulated time a replan takes [s]: the learner replans on its worker thread and adopts
+    #: the plan at the first control tick this long after the push's sample, whatever the machine's
+    #: load (:class:`phri.Learner`'s ``replan_latency``). One tick of the 1 kHz loop (the default)
+    #: gives exactly the results of replanning within the tick (Algorithm 1 as written); 0 replans
+    #: inline, in the tick itself.
+    replan_latency: float = 0.001
 
     def __post_init__(self) -> None:
         def fail(key: str, expected: str, got: Any, show: Any = str) -> Exception:
@@ -112,6 +120,8 @@ class EpisodeConfig:
             raise fail(
                 "transition_speed", "a fraction of the velocity limits in [0, 1]", self.transition_speed
             )
+        if not (math.isfinite(self.replan_latency) and 0 <= self.replan_latency <= MAX_REPLAN_LATENCY):
+            raise fail("replan_latency", f"a time in [0, {MAX_REPLAN_LATENCY:g}] s", self.replan_latency)
         for key, positive in (("sensor_bias", False), ("thresholds", True), ("detector_bias", False)):
             value = getattr(self, key)
             if value is not None:
@@ -307,6 +317,7 @@ def _set_up(
         task.vector("initial"), task.start, task.goal,
         duration=task.duration, sample_period=1.0 / config.sample_rate,
         learning=config.strategy == "learning", transition_speed=config.transition_speed,
+        replan_latency=config.replan_latency,
     )  # fmt: skip
     desired = TimedTrajectory(planner.desired, task.duration)
     person = Participant(participant_params, desired, task.task_feature, model, person_rng, dt=dt)

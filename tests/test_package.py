@@ -286,7 +286,7 @@ def test_quiet_and_verbose_set_phris_log_level(flags: list[str], level: str) -> 
 
 
 def test_the_library_does_not_print() -> None:
-    """Library code logs; only the command-line modules (and the demo, for now) print."""
+    """Library code logs; only the command-line modules print (and the simulator server its ready line)."""
     printing = sorted(
         path.relative_to(PACKAGE).as_posix()
         for path in PACKAGE.rglob("*.py")
@@ -295,7 +295,7 @@ def test_the_library_does_not_print() -> None:
             for n in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
         )
     )
-    assert set(printing) <= {"cli.py", "study/cli.py", "demo.py", "franka/sim_server.py"}, printing
+    assert set(printing) <= {"cli.py", "study/cli.py", "franka/sim_server.py"}, printing
 
 
 def test_hostile_command_lines_are_clear_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -63,9 +63,18 @@ def _demo(args: argparse.Namespace) -> int:
     from phri._extras import check_part
 
     check_part("the demo")
-    from phri.demo import run_demo
+    from phri.demo import run_demo, table_header, table_row
 
-    run_demo(Path(args.out), seed=args.seed, gui=args.gui, frames=not args.no_frames)
+    header = {"printed": False}
+
+    def print_row(result: Any) -> None:
+        if not header["printed"]:
+            print(table_header())
+            header["printed"] = True
+        print(table_row(result), flush=True)
+
+    run_demo(Path(args.out), seed=args.seed, gui=args.gui, frames=not args.no_frames,
+             tasks=args.task, on_episode=print_row)  # fmt: skip
     return 0
 
 
@@ -84,11 +93,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_global_options(parser)
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="the four study tasks, both strategies, one simulated participant")
+    demo = sub.add_parser(
+        "demo", help="the four study tasks (or --task), both strategies, one simulated participant"
+    )
     demo.add_argument("--out", default="out/demo", help="output folder (a fresh one is made if it exists)")
     demo.add_argument("--seed", type=int, default=7, help="seed of the simulated participant")
     demo.add_argument("--gui", action="store_true", help="show the PyBullet window")
     demo.add_argument("--no-frames", action="store_true", help="skip rendering PNG frames")
+    demo.add_argument("--task", action="append", metavar="TASK",
+                      help="a shipped task's name or a task file (.toml) to run instead of the study's four; "
+                      "repeat for several")  # fmt: skip
     demo.set_defaults(run=_demo)
     tasks = sub.add_parser("tasks", help="list the shipped tasks")
     tasks.set_defaults(run=_tasks)

@@ -209,20 +209,8 @@ def run_episode_for_demo(
 
 def _label_frames(result: EpisodeResult, task: Task) -> None:
     """Writes the task, the strategy and the time into each of the episode's frames."""
-    from matplotlib.figure import Figure
-    from matplotlib.image import imread
-
-    if not result.frames:
-        return
-    for path, t in zip(result.frames, frame_times(task.duration), strict=True):
-        image = imread(path)
-        height, width = image.shape[:2]
-        fig = Figure(figsize=(width / 100, height / 100), dpi=100)
-        fig.figimage(image, resize=False)
-        fig.text(0.015, 0.975, f"{task.name} · {result.strategy} · t = {t:.2f} s", ha="left", va="top",
-                 fontsize=11, family="monospace",
-                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})  # fmt: skip
-        fig.savefig(path, dpi=100)
+    for path, t in zip(result.frames, frame_times(task.duration) if result.frames else (), strict=True):
+        plots.label_image(path, f"{task.name} · {result.strategy} · t = {t:.2f} s")
 
 
 def _point_features(task: Task, planner: Planner, world: World) -> Features:

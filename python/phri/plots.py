@@ -23,6 +23,7 @@ __all__ = [
     "STUDY_COLORS",
     "Circle",
     "PathStyle",
+    "label_image",
     "plot_effort",
     "plot_feature",
     "plot_paths",
@@ -65,6 +66,21 @@ def _save(fig: Any, path: str | Path, dpi: int) -> Path:
     fig.savefig(path, dpi=dpi)
     pyplot().close(fig)
     return path
+
+
+def label_image(path: str | Path, text: str) -> Path:
+    """Writes `text` into the top left corner of the image `path` (PNG), on a light band."""
+    from matplotlib.figure import Figure
+    from matplotlib.image import imread
+
+    image = imread(path)
+    height, width = image.shape[:2]
+    fig = Figure(figsize=(width / 100, height / 100), dpi=100)
+    fig.figimage(image, resize=False)
+    fig.text(0.015, 0.975, text, ha="left", va="top", fontsize=11, family="monospace",
+             bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})  # fmt: skip
+    fig.savefig(path, dpi=100)
+    return Path(path)
 
 
 def plot_effort(path: str | Path, task: str, efforts: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> Path:

@@ -189,6 +189,8 @@ class FrankaBackend:
     # -- one tick ----------------------------------------------------------------------------------
 
     def read(self) -> RobotState:
+        """Blocks until the arm's next 1 kHz tick and returns its state (libfranka's ``readOnce``);
+        a lost connection is a ConnectionLostError."""
         if self._control is None:
             raise ConnectionLostError(f"host {self.host!r}: not connected (call start first)")
         try:
@@ -215,6 +217,8 @@ class FrankaBackend:
         )
 
     def write(self, tau: np.ndarray) -> None:
+        """Commands the joint torque `tau` [N·m] for the tick just read, gravity excluded (the robot
+        compensates it); libfranka's ``writeOnce``."""
         if self._control is None:
             raise ConnectionLostError(f"host {self.host!r}: not connected (call start first)")
         torques = self._torques
@@ -228,6 +232,8 @@ class FrankaBackend:
             raise RobotFaultError(f"host {self.host!r}: the robot aborted control: {e}") from None
 
     def stop(self) -> None:
+        """Ends torque control and releases the arm; idempotent, never raises for an arm already
+        gone."""
         robot, self._robot, self._control = self._robot, None, None
         if robot is not None:
             try:

@@ -112,6 +112,8 @@ class SimServer:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Serves franky-sim's FR3 on ``--host`` (a loopback address) until stopped; prints the ready
+    line once clients can connect. Returns the exit status."""
     parser = argparse.ArgumentParser(prog="python -m phri.franka.sim_server", description=__doc__)
     parser.add_argument("--host", default="127.0.0.2", help="loopback address to serve on")
     parser.add_argument("--realtime", type=float, default=1.0, help="slow-down factor (1: real time)")

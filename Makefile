@@ -21,7 +21,8 @@ $(DEPS): pyproject.toml | $(PY)
 		"pybullet>=3.2.6" "scipy>=1.11" "matplotlib>=3.8" "pandas>=2.1" "pyarrow>=14" "statsmodels>=0.14" \
 		"tqdm>=4.66" "ray>=2.9" "pyyaml>=6" "ruff>=0.6" "mypy>=1.10" \
 		"pylibfranka==0.21.3" "franky-sim==1.0.4" \
-		"mkdocs>=1.6" "mkdocs-material>=9.5" "mkdocstrings-python>=1.16" "mkdocs-jupyter>=0.25" "ipykernel>=6"
+		"mkdocs>=1.6" "mkdocs-material>=9.5" "mkdocstrings-python>=1.16" "mkdocs-jupyter>=0.25" "ipykernel>=6" \
+		"latex2mathml>=3.77"
 	touch $@
 
 # One release build of the extension serves both the editable install in .venv and the wheel in dist/:
@@ -31,7 +32,7 @@ MATURIN_FLAGS := --zig --compatibility manylinux2014
 WITH_ZIG      := PATH="$(abspath $(VENV))/bin:$$PATH"
 
 $(BUILT): $(DEPS) $(CARGO_SOURCES) pyproject.toml
-	rm -f python/phri/_phri*.so
+	rm -f python/phri/_phri.cpython-*.so  # a version-specific build would shadow the abi3 one
 	$(WITH_ZIG) MATURIN_PEP517_ARGS="$(MATURIN_FLAGS)" \
 		$(PIP) install --quiet --no-build-isolation --no-deps --editable .
 	touch $@
@@ -43,7 +44,7 @@ wheel: $(BUILT)  ## Build the abi3 manylinux2014 wheel into dist/ (reuses the bu
 	$(WITH_ZIG) $(VENV)/bin/maturin build --quiet --interpreter $(PY) $(MATURIN_FLAGS) --out dist
 
 docs: $(BUILT)  ## Build the documentation site into site/ (strict: any warning fails)
-	$(VENV)/bin/mkdocs build --strict --site-dir site
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
 
 demo: $(BUILT)  ## Run the main job
 	$(VENV)/bin/phri demo
@@ -59,8 +60,8 @@ test: test-rust test-python  ## Everything CI runs
 lint: $(BUILT)  ## rustfmt, clippy, ruff, mypy, and the stub check
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -- -D warnings
-	$(VENV)/bin/ruff check python tests benches
-	$(VENV)/bin/ruff format --check python tests benches
+	$(VENV)/bin/ruff check python tests benches docs
+	$(VENV)/bin/ruff format --check python tests benches docs
 	$(PY) -m mypy python/phri
 	$(PY) -m mypy.stubtest phri._phri --allowlist .stubtest-allowlist
 

@@ -88,6 +88,7 @@ def _tasks(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``phri`` command's argument parser, with every subcommand."""
     parser = argparse.ArgumentParser(
         prog="phri", description="Learning robot objectives from physical human interaction."
     )
@@ -124,6 +125,8 @@ def file_error(command: str, error: OSError) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Runs ``phri`` with `argv` (None: the process's arguments); returns the exit status: 0 done,
+    2 a usage or input error, 3 a file operation the system refused."""
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose, args.quiet)
     try:

@@ -168,10 +168,12 @@ class PathStyle:
     legend_size: float = 8
 
 
+#: The demo's path figure.
 DEMO_PATHS = PathStyle(
     STUDY_COLORS, (11, 4.4), 110, ("cup path, top view", "cup height"), "cup height z [m]",
     desired={"ls": "--", "lw": 2},
 )  # fmt: skip
+#: The study report's path figure (Fig. 5, right).
 REPORT_PATHS = PathStyle(
     STUDY_COLORS, (11, 4.6), 120, ("cup (link_7) path seen from above", "cup height over time"),
     "height z [m]", desired={"lw": 2.5}, width=1.8, legend_size=9,

@@ -36,15 +36,16 @@ __all__ = [
 STUDY_COLORS = {"impedance": "#8c8c8c", "learning": "#f28e2b", "desired": "#1f77b4"}
 #: How the scene is drawn: furniture grey, a person pink, keep-out circles red.
 _SCENE_COLORS = {"furniture": "0.45", "person": "#e377c2", "keep_out": "#d62728"}
-#: What each built-in feature measures at the cup (its value at one point of the path), for axis labels.
+#: What each built-in feature measures at the cup (its value at one point of the path), for axis
+#: labels; a keep-out feature's is how far inside its circle the cup is.
 FEATURE_LABELS = {
     "efficiency": "squared joint step [rad²]",
     "table": "cup height z [m]",
     "coffee": "cup tilt |x_x| + |x_y| (0: upright)",
     "coffee_dot": "cup tilt 1 − x·ẑ (0: upright)",
-    "laptop": "cup inside the laptop's keep-out circle [m]",
-    "human": "cup inside the person's keep-out circle [m]",
-    "origin": "cup distance from the base [m]",
+    "laptop": "depth in the laptop's keep-out [m]",
+    "human": "depth in the person's keep-out [m]",
+    "origin": "cup distance from base [m]",
 }
 
 #: A keep-out circle in the top view: centre (x, y) and radius [m].

@@ -60,8 +60,8 @@ test: test-rust test-python  ## Everything CI runs
 lint: $(BUILT)  ## rustfmt, clippy, ruff, mypy, and the stub check
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -- -D warnings
-	$(VENV)/bin/ruff check python tests benches docs
-	$(VENV)/bin/ruff format --check python tests benches docs
+	$(VENV)/bin/ruff check python tests benches docs/*.py
+	$(VENV)/bin/ruff format --check python tests benches docs/*.py
 	$(PY) -m mypy python/phri
 	$(PY) -m mypy.stubtest phri._phri --allowlist .stubtest-allowlist
 

@@ -36,12 +36,12 @@ def on_config(config: Any) -> Any:
 
 
 def phri_help(command: str) -> str:
-    """``phri COMMAND --help`` (``phri --help`` for ""), formatted 100 columns wide."""
+    """``phri COMMAND --help`` (``phri --help`` for ""), 80 columns wide: a page's code block."""
     from phri.cli import main
 
     out = io.StringIO()
     previous = os.environ.get("COLUMNS")
-    os.environ["COLUMNS"] = "100"
+    os.environ["COLUMNS"] = "80"
     try:
         with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit):
             main([*command.split(), "--help"])

@@ -176,6 +176,16 @@ def test_bad_demo_tasks_are_a_clear_error_before_anything_is_written(tasks, matc
     assert not (tmp_path / "d").exists()
 
 
+def test_a_task_the_demo_cannot_run_is_refused_before_anything_is_written(tmp_path, capsys) -> None:
+    """The demo simulates the JACO2: an FR3 task is refused, naming the task file and the robot, and
+    no output folder is left behind."""
+    out = tmp_path / "demo"
+    assert phri.cli.main(["-q", "demo", "--task", "table", "--task", "fr3_table", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "fr3_table.toml" in err and "'fr3'" in err, err
+    assert not out.exists()
+
+
 def test_an_interrupted_demo_keeps_the_rows_of_the_episodes_it_finished(
     short_tasks, tmp_path, monkeypatch
 ) -> None:

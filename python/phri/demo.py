@@ -154,17 +154,40 @@ def run_demo(
         raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
     check_out(Path(out))
     loaded = _tasks(STUDY_TASKS if tasks is None else tasks)
-    folder = fresh_folder(Path(out))
-    (folder / "logs").mkdir()
-    (folder / "frames").mkdir()
     participant = ParticipantParams.draw(np.random.default_rng(seed))
-    log.info("one simulated participant (%s); output in %s", describe_participant(participant), folder)
+    with World(params=WorldParams(gui=gui)) as world:
+        # Every task is planned before anything is written: one that cannot run here (another
+        # robot's, or one that cannot be planned safely) leaves no folder behind.
+        planners = [Planner(task, world) for task in loaded]
+        folder = fresh_folder(Path(out))
+        (folder / "logs").mkdir()
+        (folder / "frames").mkdir()
+        log.info("one simulated participant (%s); output in %s", describe_participant(participant), folder)
+        results = _run(world, planners, participant, folder, seed, frames, on_episode)
+    seconds = time.perf_counter() - began
+    log.info(
+        "wrote %s: summary.csv, force_*.png, path_*.png, feature_*.png, weights_*.png, frames/, logs/ "
+        "in %.1f s", folder, seconds,
+    )  # fmt: skip
+    return DemoResult(folder, results, seconds)
+
+
+def _run(
+    world: World,
+    planners: list[Planner],
+    participant: ParticipantParams,
+    folder: Path,
+    seed: int,
+    frames: bool,
+    on_episode: Callable[[EpisodeResult], None] | None,
+) -> list[EpisodeResult]:
+    """Both strategies on each planner's task; each row into ``summary.csv`` as it finishes, then
+    the task's figures."""
     results: list[EpisodeResult] = []
     summary: csv.DictWriter | None = None
-    with World(params=WorldParams(gui=gui)) as world, open(folder / "summary.csv", "x", newline="") as f:
-        for task in loaded:
-            planner = Planner(task, world)
-            per_task: dict[str, EpisodeResult] = {}
+    with open(folder / "summary.csv", "x", newline="") as f:
+        for planner in planners:
+            task, per_task = planner.task, {}
             for strategy in STRATEGIES:
                 r = run_episode_for_demo(task, world, participant, strategy, planner, folder, seed, frames)
                 per_task[strategy] = r
@@ -178,12 +201,7 @@ def run_demo(
                 if on_episode is not None:
                     on_episode(r)
             _plot(folder, task, planner, world, per_task)
-    seconds = time.perf_counter() - began
-    log.info(
-        "wrote %s: summary.csv, force_*.png, path_*.png, feature_*.png, weights_*.png, frames/, logs/ "
-        "in %.1f s", folder, seconds,
-    )  # fmt: skip
-    return DemoResult(folder, results, seconds)
+    return results
 
 
 def run_episode_for_demo(

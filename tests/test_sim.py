@@ -3,11 +3,9 @@ and the paper's result — learning beats impedance on every task — with a fix
 
 from __future__ import annotations
 
-import csv
 import io
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -346,24 +344,6 @@ def test_participants_are_drawn_reproducibly_from_documented_ranges() -> None:
         assert lo <= getattr(a, key) <= hi
 
 
-@pytest.mark.slow
-def test_the_demo_writes_its_table_figures_frames_and_logs(tmp_path, capsys) -> None:
-    from phri.demo import run_demo
-
-    out = tmp_path / "demo"
-    result = run_demo(out, seed=7)
-    text = capsys.readouterr().out
-    assert "learning" in text and "impedance" in text
-    for name in ("summary.csv", "force_table.png", "path_laptop.png", "weights_coffee.png"):
-        assert (result.folder / name).is_file()
-    assert len(list((result.folder / "frames").glob("*.png"))) == 32
-    assert len(list((result.folder / "logs").glob("*.npz"))) == 8
-    with open(result.folder / "summary.csv", newline="") as f:
-        assert len(list(csv.DictReader(f))) == 8
-    again = run_demo(out, seed=7, frames=False)
-    assert again.folder != result.folder, "a second run must not overwrite the first"
-
-
 def test_the_person_draws_the_same_noise_whatever_the_sensor_draws(world, tmp_path) -> None:
     """The participant and the sensor have their own random streams: under impedance (which only
     records what it measures) a sensor that draws less often (no noise, a lower sample rate) or more
@@ -479,77 +459,3 @@ def test_pybullet_prints_nothing_into_the_output() -> None:
     )
     assert done.stdout == "a\nb\n"
     assert "pybullet build time" not in done.stderr
-
-
-def test_demo_into_an_existing_file_is_a_clear_error_before_any_episode(
-    tmp_path, monkeypatch, capsys
-) -> None:
-    import phri.cli
-    import phri.demo
-
-    def no_world(*args, **kwargs):
-        raise AssertionError("the demo started simulating")
-
-    monkeypatch.setattr(phri.demo, "World", no_world)
-    file = tmp_path / "results.txt"
-    file.write_text("keep me")
-    for out in (file, file / "demo"):
-        assert phri.cli.main(["demo", "--out", str(out), "--no-frames"]) == 2
-        captured = capsys.readouterr()
-        assert captured.out == ""
-        assert captured.err.startswith(f"phri demo: error: --out {out} is ")
-        assert "a file" in captured.err
-    assert file.read_text() == "keep me"
-    assert sorted(tmp_path.iterdir()) == [file]
-
-
-@pytest.fixture
-def short_demo(monkeypatch):
-    """The demo on two study tasks cut to 2 s."""
-    import phri.demo
-
-    monkeypatch.setattr(phri.demo, "STUDY_TASKS", ("table", "coffee"))
-    monkeypatch.setattr(phri.demo, "load_task", lambda name: shortened(phri.load_task(name), 2.0, 5))
-    return phri.demo
-
-
-def test_the_demo_keeps_to_each_tasks_duration(short_demo, tmp_path, monkeypatch) -> None:
-    import matplotlib.figure
-
-    plotted: dict[str, list[float]] = {}
-    savefig = matplotlib.figure.Figure.savefig
-
-    def recording_savefig(fig, path, *args, **kwargs):
-        plotted[Path(path).name] = [float(np.max(line.get_xdata())) for line in fig.axes[-1].lines]
-        return savefig(fig, path, *args, **kwargs)
-
-    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", recording_savefig)
-    result = short_demo.run_demo(tmp_path / "demo", seed=7)
-    for task in ("table", "coffee"):
-        for strategy in ("impedance", "learning"):
-            frames = sorted(p.name for p in (result.folder / "frames").glob(f"{task}_{strategy}_t*.png"))
-            assert frames == [f"{task}_{strategy}_t{t}.png" for t in ("00.00", "00.67", "01.33", "02.00")]
-        # The time axes of the path and the weight figures end with the task.
-        assert plotted[f"path_{task}.png"] == [2.0, 2.0, 2.0]
-        assert max(plotted[f"weights_{task}.png"]) == 2.0
-
-
-def test_an_interrupted_demo_keeps_the_rows_of_the_episodes_it_finished(
-    short_demo, tmp_path, monkeypatch
-) -> None:
-    run, calls = short_demo.run_episode_for_demo, {"n": 0}
-
-    def interrupted(*args):
-        calls["n"] += 1
-        if calls["n"] == 3:
-            raise KeyboardInterrupt
-        return run(*args)
-
-    monkeypatch.setattr(short_demo, "run_episode_for_demo", interrupted)
-    out = tmp_path / "demo"
-    with pytest.raises(KeyboardInterrupt):
-        short_demo.run_demo(out, seed=7, frames=False)
-    with open(out / "summary.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    assert [(r["task"], r["strategy"]) for r in rows] == [("table", "impedance"), ("table", "learning")]
-    assert float(rows[1]["effort"]) >= 0

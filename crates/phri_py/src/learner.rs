@@ -342,16 +342,27 @@ impl PyLearner {
 /// feasible plan) [s], and `rejected` (R,) why, naming the violated pair.
 #[pyclass(name = "LearnerHistory", module = "phri._phri", frozen, get_all)]
 pub struct PyLearnerHistory {
+    /// (M,) each sampled interaction's time [s].
     t: Py<PyArray1<f64>>,
+    /// (M, n) the thresholded interaction torque u_H [N·m].
     u_h: Py<PyArray2<f64>>,
+    /// (M, K) Φ(ξ_H) − Φ(ξ_R); NaN where no deformation was made (`moved` = 0).
     delta_phi: Py<PyArray2<f64>>,
+    /// (M, K) the cost weights after each update.
     weights: Py<PyArray2<f64>>,
+    /// (M,) how many waypoints each deformation moved (0: none).
     moved: Py<PyArray1<usize>>,
+    /// (M,) what each weight update did (None where there was none).
     updates: Vec<Option<PyUpdateInfo>>,
+    /// (M,) what each replan did (None where there was none).
     replans: Vec<Option<PyTrajoptInfo>>,
+    /// (P,) the time each plan took effect [s]; the first is the initial plan's, 0.
     plan_t: Py<PyArray1<f64>>,
+    /// (P, N, n) the plans [rad], the initial one first.
     plans: Py<PyArray3<f64>>,
+    /// (R,) the times of replans that were not adopted because they were infeasible [s].
     rejected_t: Py<PyArray1<f64>>,
+    /// (R,) why each of those replans was rejected, naming the violated pair.
     rejected: Vec<String>,
 }
 

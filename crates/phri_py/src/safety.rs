@@ -27,14 +27,20 @@ const _: () = assert!(
 #[pyclass(name = "SafetyViolation", module = "phri._phri", frozen, eq)]
 #[derive(PartialEq)]
 pub struct PySafetyViolation {
+    /// The limit crossed, one of SAFETY_LIMITS.
     #[pyo3(get)]
     limit: &'static str,
+    /// What crossed it: "t" [s], "q" [rad], "qd" [rad/s], "tau_ext" or "tau" [N·m],
+    /// "tool_position" [m] or "tick_gap" [s].
     #[pyo3(get)]
     quantity: &'static str,
+    /// The joint; the axis (0, 1, 2 = x, y, z) for the tool; the late ticks in a row for late ticks.
     #[pyo3(get)]
     index: usize,
+    /// The offending value, in the quantity's unit.
     #[pyo3(get)]
     value: f64,
+    /// The bound it crossed, in the quantity's unit (NaN for a non-finite value).
     #[pyo3(get)]
     bound: f64,
 }

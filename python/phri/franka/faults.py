@@ -88,6 +88,7 @@ ERROR_NAMES: tuple[str, ...] = (
     "base_acceleration_initialization_timeout",
     "base_acceleration_invalid_reading",
 )
+#: The faults the scene server can inject (``KIND[:ARG][@T]``; see the module docstring).
 FAULT_KINDS = ("reflex", "user_stop", "nan", "late", "stall", "drop")
 #: State fields a ``nan`` fault can spoil (phri's names; tau_ext is libfranka's tau_ext_hat_filtered).
 NAN_FIELDS = ("q", "dq", "tau_ext")

@@ -251,6 +251,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Serves franky-sim's FR3 on ``--host`` (a loopback address) until stopped; prints the ready
+    line once clients can connect. Returns the exit status."""
     parser = argparse.ArgumentParser(prog="python -m phri.franka.sim_server", description=__doc__)
     add_arguments(parser)
     return run(parser.parse_args(argv))

@@ -51,6 +51,8 @@ __all__ = [
     "write_log",
 ]
 
+#: The strategies an episode can use: the impedance baseline (track the plan, spring back) and
+#: learning (Algorithm 1).
 STRATEGIES = ("impedance", "learning")
 #: Update rules of phri.WeightUpdate (their one home is the core).
 RULES = UPDATE_RULES

@@ -76,6 +76,7 @@ class ParticipantParams:
         return cls(**{k: float(rng.uniform(lo, hi)) for k, (lo, hi) in DISTRIBUTIONS.items()})
 
     def as_dict(self) -> dict[str, float]:
+        """The parameters by name."""
         return asdict(self)
 
 

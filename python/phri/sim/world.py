@@ -31,8 +31,10 @@ from phri.exceptions import InvalidParameterError, SimulationError
 
 __all__ = ["CUP_INERTIA", "CUP_MASS", "World", "WorldParams"]
 
-CUP_MASS = 0.3  # kg, the shipped cup.urdf
-CUP_INERTIA = np.diag([0.00037, 0.00037, 0.00024])  # kg·m² about its centre, cup frame axes
+#: The shipped cup's mass [kg] (cup.urdf).
+CUP_MASS = 0.3
+#: The shipped cup's inertia about its centre, in the cup frame's axes [kg·m²].
+CUP_INERTIA = np.diag([0.00037, 0.00037, 0.00024])
 #: The simulated arm's description (its URDF and frame names).
 JACO2 = robots.load("jaco2")
 HAND: str = JACO2.hand_frame  # type: ignore[assignment]
@@ -292,6 +294,7 @@ class World:
         return path
 
     def close(self) -> None:
+        """Disconnects from PyBullet; closing twice does nothing."""
         if self.client is not None and self.p.isConnected(self.client):
             self.p.disconnect(self.client)
         self.client = None  # type: ignore[assignment]

@@ -55,6 +55,7 @@ _EPISODE_KEY = 1
 #: minutes before anything happened. 10,000 participants × 2 attempts × 4 tasks ×
 #: 2 strategies is 160,000 episodes, about 17 hours on 2 cores; run bigger designs as several studies.
 MAX_PARTICIPANTS = 10_000
+#: Most attempts per task and strategy a study may have (see MAX_PARTICIPANTS).
 MAX_ATTEMPTS = 100
 
 
@@ -146,6 +147,7 @@ class StudyConfig:
     # -- the study's parts ------------------------------------------------------------------------
 
     def episode_config(self, strategy: str) -> EpisodeConfig:
+        """How the study runs an episode of `strategy` (its sample rate, sensor noise and rule)."""
         return EpisodeConfig(
             strategy=strategy, sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule
         )
@@ -182,11 +184,13 @@ class StudyConfig:
 
     @property
     def episodes(self) -> int:
+        """How many episodes the study has: participants × strategies × tasks × attempts."""
         return self.participants * len(self.strategies) * len(self.tasks) * self.attempts
 
     # -- serialisation ------------------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
+        """The config as JSON-ready values (study.json's ``config``)."""
         d = dataclasses.asdict(self)
         d["tasks"], d["strategies"] = list(self.tasks), list(self.strategies)
         return d
@@ -280,9 +284,11 @@ class EpisodeSpec:
 
     @property
     def key(self) -> tuple[int, str, str, int]:
+        """(participant, strategy, task, attempt): what identifies the episode in the results."""
         return (self.participant, self.strategy, self.task, self.attempt)
 
     def log_name(self, width: int = 2) -> str:
+        """The file name of the episode's log, its participant number padded to `width` digits."""
         return f"p{self.participant:0{width}d}_{self.strategy}_{self.task}_a{self.attempt}.npz"
 
 

@@ -349,6 +349,7 @@ class ResultStore:
 
     @property
     def complete(self) -> bool:
+        """Whether every scheduled episode has its row."""
         return len(self.rows) == len(self.specs)
 
     # -- writing ---------------------------------------------------------------------------------
@@ -385,6 +386,7 @@ class ResultStore:
                 write_atomic(self.run_dir / RESULTS_CSV, text.encode("utf-8"))
 
     def close(self) -> None:
+        """Releases the study folder's lock."""
         _unlock(self._lock_fd)
         self._lock_fd = None
 

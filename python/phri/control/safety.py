@@ -35,7 +35,8 @@ class SafetyLimits:
     """The limits the safety layer holds the arm to; one entry per joint in each array.
 
     The loop stops the arm when a joint leaves the interval from `position_lower` to
-    `position_upper` [rad] (the URDF's limits less the margin; ±inf for a continuous joint), moves faster than `velocity` [rad/s], or
+    `position_upper` [rad] (the URDF's limits less the margin; ±inf for a continuous joint), moves
+    faster than `velocity` [rad/s], or
     the origin of frame `tool` leaves `tool_box` (lower, upper corners [m] in the base frame; None:
     anywhere); it clips the torque to `torque` [N·m] and the command's rate of change to
     `torque_rate` [N·m/s]. `source` says where the limits came from (for messages)."""

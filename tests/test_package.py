@@ -269,6 +269,21 @@ def test_version_and_python_m_phri(capsys: pytest.CaptureFixture[str]) -> None:
     assert usage.returncode == 2 and usage.stderr.startswith("usage: phri ")
 
 
+def test_phri_tasks_lists_every_task_with_its_robot_in_aligned_columns(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from phri.config import task_names
+
+    assert cli(["tasks"]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    assert [r.split()[0] for r in rows] == task_names()
+    assert {r.split()[1] for r in rows} == {"jaco2", "fr3"}
+    # The robot and the title start in the same column on every row, however long the name.
+    columns = [re.match(r"(\S+\s+)(\S+\s+)", r) for r in rows]
+    assert all(columns)
+    assert len({(len(m[1]), len(m[1]) + len(m[2])) for m in columns if m}) == 1
+
+
 @pytest.mark.parametrize(
     ("flags", "level"),
     [([], "INFO"), (["-v"], "DEBUG"), (["-vv"], "DEBUG"), (["-q"], "WARNING"), (["-qq"], "ERROR"),

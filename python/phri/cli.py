@@ -81,9 +81,11 @@ def _demo(args: argparse.Namespace) -> int:
 def _tasks(args: argparse.Namespace) -> int:
     from phri.config import load_task, task_names
 
-    for name in task_names():
+    names = task_names()
+    width = max(map(len, names))
+    for name in names:
         task = load_task(name)
-        print(f"{name:<9} {task.title}  (features: {', '.join(task.feature_names)})")
+        print(f"{name:<{width}}  {task.robot:<5}  {task.title}  (features: {', '.join(task.feature_names)})")
     return 0
 
 

@@ -281,8 +281,9 @@ class World:
     def render(self, path: str | Path, width: int = 480, height: int = 360) -> Path:
         """Writes a PNG of the scene from PyBullet's software renderer."""
         p, c = self.p, self.client
-        view = p.computeViewMatrix([0.9, -1.2, 0.8], [-0.3, 0.0, 0.05], [0, 0, 1], physicsClientId=c)
-        proj = p.computeProjectionMatrixFOV(50, width / height, 0.05, 5.0, physicsClientId=c)
+        # From the front right, far and high enough that the arm stretched up or out stays in view.
+        view = p.computeViewMatrix([1.7, -1.9, 1.5], [-0.15, 0.25, 0.25], [0, 0, 1], physicsClientId=c)
+        proj = p.computeProjectionMatrixFOV(45, width / height, 0.05, 6.0, physicsClientId=c)
         _, _, rgba, _, _ = p.getCameraImage(
             width, height, view, proj, renderer=p.ER_TINY_RENDERER, physicsClientId=c
         )

@@ -23,6 +23,7 @@ and :func:`write_population` refuses to write it unless asked to (``accept_misse
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -58,6 +59,8 @@ __all__ = [
     "write_population",
 ]
 
+logger = logging.getLogger(__name__)
+
 #: The free quantity that scales every distribution's spread (lognormal sigma, normal sd).
 SPREAD = "spread"
 #: What a calibration fits unless told otherwise: ``parameter.key`` of a distribution, or SPREAD.
@@ -77,6 +80,10 @@ _STEP = 0.3
 
 class CalibrationError(PhriError, ValueError):
     """A calibration that cannot run, or whose result misses its targets."""
+
+
+class _OutOfBudget(Exception):
+    """Stops the search once it has evaluated its budget of candidates."""
 
 
 @dataclass(frozen=True)
@@ -349,7 +356,7 @@ def calibrate(
         if key in seen:  # Nelder-Mead re-evaluates its starting point: simulate each candidate once
             return seen[key]
         if len(evaluated) >= settings.budget:
-            return evaluated_best().loss + 1.0  # out of budget: the search is stopping
+            raise _OutOfBudget
         try:
             candidate_pop = _candidate_population(start, quantities, x)
         except PhriError:
@@ -363,6 +370,12 @@ def calibrate(
         if on_candidate is not None:
             on_candidate(len(evaluated), candidate)
         seen[key] = candidate.loss
+        logger.info(
+            "candidate %d: loss %.4g (best %.4g) at %s",
+            len(evaluated), candidate.loss, evaluated_best().loss,
+            ", ".join(f"{n}{'.' + k if k else ''} = {v * math.exp(float(xi)):.4g}"
+                      for (n, k, v), xi in zip(quantities, x, strict=True)),
+        )  # fmt: skip
         return candidate.loss
 
     def evaluated_best() -> Candidate:
@@ -371,11 +384,15 @@ def calibrate(
     try:
         x0 = np.zeros(len(quantities))
         evaluate(x0)
-        if settings.budget > 1:
-            simplex = np.vstack([x0, x0 + _STEP * np.eye(len(quantities))])
+        simplex = np.vstack([x0, x0 + _STEP * np.eye(len(quantities))])
+        try:
+            # Nelder-Mead re-visits points (cached above): it stops at the budget of new candidates,
+            # or once its simplex has shrunk to 2 % in every log-quantity.
             minimize(evaluate, x0, method="Nelder-Mead",
-                     options={"initial_simplex": simplex, "maxfev": settings.budget - 1, "xatol": 0.02,
+                     options={"initial_simplex": simplex, "maxfev": 10 * settings.budget, "xatol": 0.02,
                               "fatol": 1e-4})  # fmt: skip
+        except _OutOfBudget:
+            pass
     finally:
         bar.close()
         simulator.close()

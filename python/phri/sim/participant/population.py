@@ -305,26 +305,18 @@ def _distribution(source: str, name: str, spec: Any) -> Distribution:
     dist = Distribution(kind, tuple(values.items()))
     # Every person drawn must be a valid person: check the distribution's range (its extremes).
     lo, hi = dist.quantile(0.0), dist.quantile(1.0)
-    for key, x in (("low" if kind == "uniform" else "min", lo), ("high" if kind == "uniform" else "max", hi)):
-        if not param.allows(x):
-            what = {
-                "fixed": "value",
-                "lognormal": key if key in values else "median",
-                "normal": key if key in values else "mean",
-                "uniform": key,
-            }[kind]
-            extra = (
-                ""
-                if what in values and what != "value" and kind != "lognormal"
-                else f" (a {kind} distribution can reach {x:g}; clip it with min/max)"
-                if kind == "normal"
-                else ""
-            )
-            shown = values.get(what, x)
-            raise ConfigError(
-                f"{where}.{what}' must keep {name} {param.expected} [{unit}] "
-                f"({param.meaning}), got {shown!r}{extra}"
-            )
+    for bound, x in (("min", lo), ("max", hi)):
+        if param.allows(x):
+            continue
+        # Name the key that puts the extreme out of range: a clip, else the distribution's own value.
+        key = {"fixed": "value", "uniform": "low" if bound == "min" else "high"}.get(kind, bound)
+        if key not in values:
+            key = "median" if kind == "lognormal" else "mean"
+        hint = f" (a normal distribution reaches {x:g}; clip it with min/max)" if kind == "normal" else ""
+        raise ConfigError(
+            f"{where}.{key}' must keep {name} {param.expected} [{unit}] ({param.meaning}), "
+            f"got {values[key]!r}{hint}"
+        )
     return dist
 
 

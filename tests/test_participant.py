@@ -383,3 +383,34 @@ def test_a_missing_population_file_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="population file not found"):
         load_population(tmp_path / "nobody.toml")
     assert isinstance(default_population(), Population)
+
+
+@pytest.mark.slow
+def test_a_two_feature_task_is_corrected_on_both_features() -> None:
+    """Issue 15: table and cup tilt both learned; the person pushes down and rights the cup, and the
+    learning robot ends better on both features than the impedance robot."""
+    from phri.sim import EpisodeConfig, World
+    from phri.sim.episode import simulate_episode
+
+    table, coffee = phri.load_task("table"), phri.load_task("coffee")
+    both = dataclasses.replace(table, name="table_coffee", features=(*table.features, coffee.features[1]))
+    person = default_population().draw(0, 1)
+    with World() as world:
+        planner = Planner(both, world)
+        phi, weights = {}, {}
+        for strategy in ("impedance", "learning"):
+            r, error = simulate_episode(
+                both, world, person, EpisodeConfig(strategy=strategy), seed=1, planner=planner
+            )
+            assert error is None
+            q = r.log_arrays["q"]
+            rows = np.minimum(
+                np.round(np.linspace(0, both.duration, both.waypoints) / 0.01).astype(int), len(q) - 1
+            )
+            phi[strategy], weights[strategy] = planner.features.phi(q[rows]), r.final_weights
+            push = r.log_arrays["push"]
+            assert (push[:, 2] < -0.5).any() and (np.linalg.norm(push[:, 3:], axis=1) > 0.2).any(), strategy
+    table_k, coffee_k = both.feature_names.index("table"), both.feature_names.index("coffee")
+    for k in (table_k, coffee_k):
+        assert phi["learning"][k] < 0.75 * phi["impedance"][k], both.feature_names[k]
+        assert weights["learning"][k] > 0.1 and weights["impedance"][k] == 0.0

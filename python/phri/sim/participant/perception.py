@@ -58,12 +58,14 @@ class Correction:
     @property
     def translation(self) -> float:
         """Length of the move's translation [m]."""
-        return float(np.linalg.norm(self.move[:3]))
+        m = self.move
+        return math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
 
     @property
     def rotation(self) -> float:
         """Angle of the move's rotation [rad]."""
-        return float(np.linalg.norm(self.move[3:]))
+        m = self.move
+        return math.sqrt(m[3] * m[3] + m[4] * m[4] + m[5] * m[5])
 
 
 class TaskView:
@@ -86,7 +88,9 @@ class TaskView:
         path = desired.sample_many(times)[0]
         # Each configuration's own feature values: the segment (q, q] of a repeated waypoint.
         values = self.features.per_segment(np.repeat(path, 2, axis=0))[0::2]
-        self.reference = values[:, [k for k, _, _ in self.watched]]
+        #: The watched features' indices in the task's features.
+        self.index = [k for k, _, _ in self.watched]
+        self.reference = values[:, self.index]
         self.reference_xy = robot.frame_pose(self.frame, path)[:, :2, 3].copy()
         #: Index of the desired point the person compares with; it never goes back.
         self.progress = 0
@@ -106,15 +110,16 @@ class TaskView:
         self.progress += int(np.argmin(np.einsum("ij,ij->i", gaps, gaps)))
         phi, jac = self.features.phi_gradient(np.stack([q, q]))
         jacobian = self.robot.jacobian(self.frame, q)
-        index = [k for k, _, _ in self.watched]
+        index = self.index
         # ∇_q φ_k(q) of the single configuration: both waypoints of the segment are q.
         grad_q = jac[index, 0] + jac[index, 1]  # (K', n)
         # G_k: the pose gradient with J^T G_k = ∇_q φ_k, in the least-squares sense (exact when φ_k
         # depends on the cup's pose only): G_k = (J J^T)^-1 J ∇_q φ_k.
         grad_x = np.linalg.solve(jacobian @ jacobian.T, jacobian @ grad_q.T).T  # (K', 6)
         out = []
+        reference = self.reference[self.progress]
         for j, (k, name, sign) in enumerate(self.watched):
-            value, desired = float(phi[k]), float(self.reference[self.progress, j])
+            value, desired = float(phi[k]), float(reference[j])
             g = grad_x[j]
             norm2 = float(g @ g)
             fixable = math.sqrt(norm2) > _FLAT

@@ -9,7 +9,7 @@ every parameter at its distribution's median (:func:`phri.sim.participant.popula
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from phri.exceptions import InvalidParameterError
 from phri.sim.participant.parameters import PARAMETERS
@@ -85,7 +85,3 @@ class ParticipantParams:
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> ParticipantParams:
-        return cls(**values)

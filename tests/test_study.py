@@ -1254,6 +1254,9 @@ def test_the_study_draws_its_people_from_its_population_and_keeps_it(tmp_path: P
     study = tmp_path / "study.toml"
     study.write_text('participants = 2\npopulation = "weak.toml"\n')  # relative to the study file
     assert StudyConfig.from_toml(study).population == weak
+    assert StudyConfig(population="default").population == default_population()
+    with pytest.raises(StudyConfigError, match="study: population must be a population name, a file path"):
+        StudyConfig(population=42)  # type: ignore[arg-type]
     study.write_text('participants = 2\npopulation = "nobody.toml"\n')
     with pytest.raises(
         StudyConfigError, match=r"study.toml: key 'population': .*nobody.toml: population file not found"

@@ -145,9 +145,8 @@ class StudyConfig:
             EpisodeConfig(sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule)
         except ValueError as e:
             raise StudyConfigError(f"study: {e}") from None
-        if not isinstance(self.population, Population):
-            raise fail("population", "a Population (load one with phri.sim.participant.load_population)",
-                       self.population)  # fmt: skip
+        if not isinstance(self.population, Population):  # a name, a path or a table (as to_dict gives)
+            object.__setattr__(self, "population", _population(self.population, "study", None))
 
     # -- the study's parts ------------------------------------------------------------------------
 

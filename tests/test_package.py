@@ -147,7 +147,7 @@ def test_require_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(MissingExtraError, match=r"tqdm is installed but cannot be imported .*colorama"):
         _extras.require("tqdm")
     with pytest.raises(KeyError, match="not one of phri's optional dependencies"):
-        _extras.require("scipy")
+        _extras.require("yaml")  # pyyaml: a test dependency, not an extra
 
 
 def test_check_lists_every_missing_module_and_the_fewest_extras(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -95,7 +95,7 @@ def participant_for(task: Task, robot: Robot, seed: int, dt: float = TICK) -> Ca
         params = ParticipantParams.draw(np.random.default_rng(seed))
         # The person's own random stream, as an episode spawns it from the same seed.
         person_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[0])
-        return Participant(params, desired, task.task_feature, robot, person_rng, dt=dt)
+        return Participant(params, task, robot, desired, person_rng, dt=dt)
 
     return make
 

@@ -322,7 +322,7 @@ def _set_up(
         replan_latency=config.replan_latency,
     )  # fmt: skip
     desired = TimedTrajectory(planner.desired, task.duration)
-    person = Participant(participant_params, desired, task.task_feature, model, person_rng, dt=dt)
+    person = Participant(participant_params, task, model, desired, person_rng, dt=dt)
     bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
     # The virtual wall keeps every body clear of the furniture at run time, however the person pushes.
     controller = ImpedanceController(model, scene=task.scene)

@@ -298,7 +298,10 @@ class ResultStore:
         (self.run_dir / LOGS).mkdir(exist_ok=True)
         people = io.StringIO()
         writer = csv.writer(people, lineterminator="\n")
-        params = [participant_params(self.config.seed, p) for p in range(1, self.config.participants + 1)]
+        params = [
+            participant_params(self.config.seed, p, self.config.population)
+            for p in range(1, self.config.participants + 1)
+        ]
         fields = list(params[0].as_dict())
         writer.writerow(["participant", "strategy_order", *fields])
         for p, pp in enumerate(params, start=1):

@@ -63,7 +63,7 @@ class EpisodeRunner:
     def participant(self, p: int) -> ParticipantParams:
         """Participant `p`'s parameters, drawn from the study seed once."""
         if p not in self._participants:
-            self._participants[p] = participant_params(self.config.seed, p)
+            self._participants[p] = participant_params(self.config.seed, p, self.config.population)
         return self._participants[p]
 
     def run(self, spec: EpisodeSpec) -> Outcome:
@@ -74,7 +74,7 @@ class EpisodeRunner:
         name = spec.log_name(self.log_width)
         try:
             result, error = simulate_episode(
-                task, self.world, self.participant(spec.participant),
+                task, self.world, self.participant(spec.participant).for_attempt(spec.attempt),
                 self.config.episode_config(spec.strategy), seed=spec.seed, planner=self.planner(spec.task),
             )  # fmt: skip
         except SimulationError as e:  # before the simulation started: no log

@@ -25,7 +25,6 @@ from phri._phri import Features, TimedTrajectory
 from phri.config import STUDY_TASKS, Task, load_task
 from phri.exceptions import InvalidParameterError
 from phri.sim import (
-    DISTRIBUTIONS,
     STRATEGIES,
     EpisodeConfig,
     EpisodeResult,
@@ -34,6 +33,7 @@ from phri.sim import (
     World,
     WorldParams,
 )
+from phri.sim.participant import PARAMETERS
 
 __all__ = [
     "FRAMES",
@@ -84,8 +84,12 @@ def fresh_folder(path: Path) -> Path:
 
 
 def describe_participant(params: ParticipantParams) -> str:
-    """The drawn parameters of a simulated participant, three significant digits each."""
-    return ", ".join(f"{name} {getattr(params, name):.3g}" for name in DISTRIBUTIONS)
+    """The drawn parameters of a simulated participant, three significant digits each, with units."""
+
+    def unit(name: str) -> str:
+        return "" if PARAMETERS[name].unit == "-" else f" {PARAMETERS[name].unit}"
+
+    return ", ".join(f"{name} {getattr(params, name):.3g}{unit(name)}" for name in PARAMETERS)
 
 
 def table_header() -> str:

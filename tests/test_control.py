@@ -316,6 +316,32 @@ def test_a_clock_that_does_not_advance_ends_the_motion() -> None:
     assert len(arm.commands) == 41
 
 
+def _table_learner(duration: float) -> phri.Learner:
+    """A phri.Learner for the table task cut to `duration` seconds (it refuses times past it)."""
+    from types import SimpleNamespace
+
+    from phri.sim import Planner
+
+    task = shortened(load_task("table"), duration, 5)
+    planner = Planner(task, SimpleNamespace(model=JACO2))  # type: ignore[arg-type]
+    update = phri.WeightUpdate(task.vector("step"), task.vector("lower"), task.vector("upper"))
+    return phri.Learner(
+        planner.features, phri.Deformation(), update, phri.InteractionDetector(), planner.optimizer,
+        task.vector("initial"), task.start, task.goal, duration=duration,
+    )  # fmt: skip
+
+
+def test_a_late_last_tick_past_the_tasks_end_still_finishes_the_motion() -> None:
+    # One late tick (50 ms: the robot's clock jumps) at the motion's end puts the last tick past
+    # the task's end; single late ticks do not stop the arm, and the learner must not be handed a
+    # time it refuses (past duration + Learner.TIME_SLACK), which would end the motion with an error.
+    duration = 0.2
+    arm = FakeArm(script=_clock(lambda k: k * PERIOD if k < 195 else (k + 50) * PERIOD))
+    result = loop_over(arm, _table_learner(duration)).run(START, duration)
+    assert result.stop is None and result.ticks == 196 and len(arm.commands) == 196
+    assert arm.stops == 1
+
+
 def test_torques_beyond_the_limits_are_clipped_and_counted() -> None:
     # A reference 0.5 rad away asks joint 2 for 150 N·m of spring torque.
     class Far(StillLearner):

@@ -7,7 +7,8 @@ simulated study, a Franka over libfranka) at the backend's control rate. One tic
 2. the safety layer checks it (:meth:`phri.control.SafetyLayer.check_state`: non-finite values,
    the clock, late ticks, joint positions and velocities, the tool's box);
 3. ``learner.observe(t, tau_ext)``: the learner samples the person's torque on its own grid and
-   returns at once between samples (replans never hold the tick up);
+   returns at once between samples (replans never hold the tick up); a last tick that comes late,
+   past the motion's end, is observed at the end;
 4. ``learner.reference(t)``: the reference q_R, q̇_R to track;
 5. the impedance torque (:meth:`phri.ImpedanceController.torque_implicit`, with the task's scene so
    the run-time clearance wall acts), including g(q);
@@ -373,7 +374,9 @@ class ControlLoop:
                 violation = check_state(t, state.q, state.qd, state.tau_ext)
                 if violation is not None:
                     raise self._violation(violation, k, state)
-                observe(t, state.tau_ext)
+                # A late last tick may come past the motion's end (the robot's clock jumped): the
+                # learner, which refuses times past its task's end, sees the end.
+                observe(t if t <= duration else duration, state.tau_ext)
                 reference(t, out=out)
                 torque(state.q, state.qd, q_ref, qd_ref, period, out=tau)
                 wall = controller.wall_force

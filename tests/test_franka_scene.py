@@ -395,6 +395,20 @@ def test_the_server_process_is_gone_after_its_block_even_on_an_error() -> None:
         server.inject("drop")
 
 
+def test_the_server_stops_when_its_control_channel_closes() -> None:
+    """A SimServer's process killed without leaving its block (kill -9, a crash) closes the child's
+    stdin, the control channel: the child stops rather than serve on, orphaned."""
+    with SimServer("127.0.15.6", realtime=REALTIME) as server:
+        process = server.process
+        assert process is not None and process.stdin is not None
+        process.stdin.close()
+        assert process.wait(timeout=30) == 0
+        deadline = time.monotonic() + 5  # the output is read in a thread
+        while not any("control channel closed" in line for line in server.lines):
+            assert time.monotonic() < deadline, list(server.lines)
+            time.sleep(0.01)
+
+
 # -- phri sim-server ------------------------------------------------------------------------------
 
 

@@ -216,7 +216,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-protocol", action="store_true",
                         help="log franky-sim's protocol events (connections, commands)")  # fmt: skip
     parser.add_argument("--control-stdin", action="store_true",
-                        help="read faults, one per line, from stdin (the control channel)")  # fmt: skip
+                        help="read faults, one per line, from stdin (the control channel); the "
+                        "server stops when stdin closes")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:

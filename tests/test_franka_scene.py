@@ -409,6 +409,24 @@ def test_the_server_stops_when_its_control_channel_closes() -> None:
             time.sleep(0.01)
 
 
+def test_a_server_that_fails_to_start_is_killed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """__exit__ does not run when __enter__ raises (here Ctrl-C while it waits for the port):
+    __enter__ itself kills the child."""
+    import phri.franka.sim_server as sim_server
+
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sim_server.socket, "create_connection", interrupted)
+    server = SimServer("127.0.15.7", realtime=REALTIME)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            server.__enter__()
+        assert server.process is None, "the child was left running"
+    finally:
+        server.stop()
+
+
 # -- phri sim-server ------------------------------------------------------------------------------
 
 

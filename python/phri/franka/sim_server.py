@@ -129,8 +129,6 @@ class SimServer:
         return command
 
     def __enter__(self) -> SimServer:
-        from phri.franka.backend import COMMAND_PORT
-
         self.process = subprocess.Popen(
             self.command(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.PIPE
         )
@@ -146,11 +144,25 @@ class SimServer:
                     ready.set()
 
         threading.Thread(target=drain, args=(self.process.stdout,), daemon=True).start()
+        try:
+            self._wait_ready(ready)
+        except BaseException:
+            # __exit__ does not run when __enter__ fails: whatever failed (a timeout, Ctrl-C while
+            # waiting), the child must not outlive it.
+            self.stop()
+            raise
+        return self
+
+    def _wait_ready(self, ready: threading.Event) -> None:
+        """Waits until the child printed its ready line and its port answers, else raises
+        ConnectionLostError."""
+        from phri.franka.backend import COMMAND_PORT
+
+        assert self.process is not None
         deadline = time.monotonic() + START_TIMEOUT
         while not ready.wait(0.1):
             status = self.process.poll()
             if status is not None or time.monotonic() > deadline:
-                self.stop()
                 what = (
                     f"exited with status {status}"
                     if status is not None
@@ -162,9 +174,7 @@ class SimServer:
         try:
             socket.create_connection((self.host, COMMAND_PORT), timeout=5.0).close()
         except OSError as e:
-            self.stop()
             raise ConnectionLostError(f"franky-sim on {self.host} does not answer on its port: {e}") from None
-        return self
 
     def inject(self, fault: str) -> None:
         """Sends `fault` (``KIND[:ARG][@T]``) through the control channel; the server injects it at

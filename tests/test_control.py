@@ -181,6 +181,17 @@ def test_the_loop_needs_the_laws_gravity_and_valid_settings() -> None:
         loop_over(FakeArm()).run(np.zeros(6), 1.0)
 
 
+@pytest.mark.parametrize("value", [-1, 2**32, 10**100])
+def test_a_late_ticks_count_out_of_range_names_the_argument(value: int) -> None:
+    # Not PyO3's bare OverflowError ("out of range integral type conversion attempted").
+    match = r"^late_ticks must be an integer in \[0, 4294967295\], got "
+    with pytest.raises(InvalidParameterError, match=match):
+        limits().layer(JACO2, period=PERIOD, gravity_compensated=False, late_ticks=value)
+    if value > 0:  # the loop's own check refuses the rest
+        with pytest.raises(InvalidParameterError, match=match):
+            loop_over(FakeArm(), late_ticks=value)
+
+
 def _bump(joint: int, value: float, attribute: str) -> Callable[[RobotState], None]:
     def change(state: RobotState) -> None:
         getattr(state, attribute)[joint] = value

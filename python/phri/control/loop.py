@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from phri._phri import ImpedanceController, Learner, SafetyViolation
+from phri._phri import SAFETY_LIMITS, ImpedanceController, Learner, SafetyViolation
 from phri.control.backend import Backend, RobotState
 from phri.control.safety import LATE_AFTER, LATE_TICKS, SafetyLimits
 from phri.exceptions import ConnectionLostError, InvalidParameterError, RobotFaultError, SafetyStopError
@@ -69,10 +69,7 @@ HOLD_TIME = 0.5
 LOG_RATE = 100.0
 #: Why the watchdog may stop the arm: the safety layer's limits (:data:`phri.control.SAFETY_LIMITS`),
 #: a lost connection, or the robot's own fault.
-STOP_REASONS = (
-    "non_finite", "joint_position", "joint_velocity", "tool_box", "late_ticks", "clock",
-    "connection_lost", "robot_fault",
-)  # fmt: skip
+STOP_REASONS = (*SAFETY_LIMITS, "connection_lost", "robot_fault")
 #: A tick on the log's time grid within this fraction of a log period counts as on it (tick times
 #: carry rounding), as the learner's sample grid does.
 GRID_TOLERANCE = 1e-6

@@ -134,6 +134,15 @@ fn report(status: &SafetyStatus) -> Option<PySafetyViolation> {
 
 #[pymethods]
 impl PySafetyLayer {
+    /// A tick more than this many control periods after the previous one is late (the default of
+    /// `late_after`) [-].
+    #[classattr]
+    const LATE_AFTER: f64 = DEFAULT_SAFETY_PARAMS.late_after;
+
+    /// This many late ticks in a row are a violation (the default of `late_ticks`).
+    #[classattr]
+    const LATE_TICKS: u32 = DEFAULT_SAFETY_PARAMS.late_ticks;
+
     #[new]
     #[pyo3(signature = (
         robot, *, tool, position_lower, position_upper, velocity, torque, torque_rate, tool_box = None,

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_sim import shortened  # the study's tasks cut short, as the simulation tests use them
 
 import phri
 from phri.config import TaskSafety, load_task
@@ -519,12 +520,6 @@ def test_bad_task_safety_tables_are_clear_errors(tmp_path, table: str, match: st
 
 
 # -- the PyBullet backend, in short real episodes ----------------------------------------------
-
-
-def shortened(task: phri.Task, duration: float, waypoints: int) -> phri.Task:
-    """`task` cut to its first `duration` seconds (the goal moved towards the start in proportion)."""
-    goal = task.start + (task.goal - task.start) * duration / task.duration
-    return phri.Task(**{**task.__dict__, "duration": duration, "waypoints": waypoints, "goal": goal})
 
 
 @pytest.fixture(scope="module")

@@ -328,19 +328,37 @@ def test_a_clock_that_does_not_advance_ends_the_motion() -> None:
     assert len(arm.commands) == 41
 
 
-def _table_learner(duration: float) -> phri.Learner:
-    """A phri.Learner for the table task cut to `duration` seconds (it refuses times past it)."""
+def _table_learner(duration: float, waypoints: int = 5, **kwargs) -> phri.Learner:
+    """A phri.Learner for the table task cut to `duration` seconds (it refuses times past it), its
+    plan `waypoints` long (a push deforms it with 11 or more: the deformation's window is 5)."""
     from types import SimpleNamespace
 
     from phri.sim import Planner
 
-    task = shortened(load_task("table"), duration, 5)
+    task = shortened(load_task("table"), duration, waypoints)
     planner = Planner(task, SimpleNamespace(model=JACO2))  # type: ignore[arg-type]
     update = phri.WeightUpdate(task.vector("step"), task.vector("lower"), task.vector("upper"))
     return phri.Learner(
         planner.features, phri.Deformation(), update, phri.InteractionDetector(), planner.optimizer,
-        task.vector("initial"), task.start, task.goal, duration=duration,
+        task.vector("initial"), task.start, task.goal, duration=duration, **kwargs,
     )  # fmt: skip
+
+
+def test_a_failed_replan_worker_does_not_end_the_motion(caplog) -> None:
+    # The learner's contract: a failed worker (here a panic, a bug in phri) is a ReplanWorkerError
+    # once and the arm keeps the plan it tracks. The loop goes on with it, counting the failure,
+    # rather than end the motion abruptly without a hold or a StopEvent.
+    learner = _table_learner(1.0, 11, replan_latency=0.01)
+    plan = learner.plan
+    learner._debug_panic_worker()
+    push = np.array([0.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # beyond joint 2's 8 N·m threshold
+    arm = FakeArm(script=lambda k, state: state.tau_ext.__setitem__(slice(None), push if k == 300 else 0.0))
+    result = loop_over(arm, learner).run(START, 1.0)
+    assert result.stop is None and result.ticks == 1001 and arm.stops == 1
+    assert result.replan_failures == 1
+    assert "panicked" in caplog.text
+    assert len(learner.history()) == 1 and len(learner.history().rejected) == 1
+    np.testing.assert_array_equal(learner.plan, plan)
 
 
 def test_a_late_last_tick_past_the_tasks_end_still_finishes_the_motion() -> None:

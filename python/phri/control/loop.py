@@ -8,7 +8,9 @@ simulated study, a Franka over libfranka) at the backend's control rate. One tic
    the clock, late ticks, joint positions and velocities, the tool's box);
 3. ``learner.observe(t, tau_ext)``: the learner samples the person's torque on its own grid and
    returns at once between samples (replans never hold the tick up); a last tick that comes late,
-   past the motion's end, is observed at the end;
+   past the motion's end, is observed at the end; a failed replan worker
+   (:class:`~phri.exceptions.ReplanWorkerError`) leaves the arm on its plan and the motion goes on
+   (``LoopResult.replan_failures``);
 4. ``learner.reference(t)``: the reference q_R, q̇_R to track;
 5. the impedance torque (:meth:`phri.ImpedanceController.torque_implicit`, with the task's scene so
    the run-time clearance wall acts), including g(q);
@@ -50,7 +52,13 @@ import numpy as np
 from phri._phri import SAFETY_LIMITS, ImpedanceController, Learner, SafetyViolation
 from phri.control.backend import Backend, RobotState
 from phri.control.safety import LATE_AFTER, LATE_TICKS, SafetyLimits
-from phri.exceptions import ConnectionLostError, InvalidParameterError, RobotFaultError, SafetyStopError
+from phri.exceptions import (
+    ConnectionLostError,
+    InvalidParameterError,
+    ReplanWorkerError,
+    RobotFaultError,
+    SafetyStopError,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -188,6 +196,9 @@ class LoopResult:
     #: command it clipped to its rate limit.
     torque_clips: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint64))
     rate_clips: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint64))
+    #: Replans the learner's worker failed (:class:`~phri.exceptions.ReplanWorkerError`, a bug in
+    #: phri, logged as an error): the arm kept the plan it tracked and the motion went on.
+    replan_failures: int = 0
     #: Ticks at which the virtual wall acted, and its largest total force [N].
     wall_ticks: int = 0
     wall_peak_force: float = 0.0
@@ -371,9 +382,15 @@ class ControlLoop:
                 violation = check_state(t, state.q, state.qd, state.tau_ext)
                 if violation is not None:
                     raise self._violation(violation, k, state)
-                # A late last tick may come past the motion's end (the robot's clock jumped): the
-                # learner, which refuses times past its task's end, sees the end.
-                observe(t if t <= duration else duration, state.tau_ext)
+                try:
+                    # A late last tick may come past the motion's end (the robot's clock jumped):
+                    # the learner, which refuses times past its task's end, sees the end.
+                    observe(t if t <= duration else duration, state.tau_ext)
+                except ReplanWorkerError as e:
+                    # The learner's worker failed (a bug in phri): as the learner promises, the arm
+                    # keeps the plan it tracks, so the motion goes on; the failure is counted.
+                    result.replan_failures += 1
+                    logger.error("t = %.3f s: %s; the arm keeps its plan", t, e)
                 reference(t, out=out)
                 torque(state.q, state.qd, q_ref, qd_ref, period, out=tau)
                 wall = controller.wall_force

@@ -409,6 +409,25 @@ def test_the_commands_rate_is_limited_and_counted() -> None:
             assert steps.max() > 10.0
 
 
+@pytest.mark.parametrize("gravity_compensated", [False, True])
+def test_the_first_command_is_rate_limited_from_what_the_arm_holds_at_rest(gravity_compensated: bool) -> None:
+    # A reference 0.5 rad away on joint 2 asks for a large spring torque at once. The first command
+    # may move at most one rate step from what the arm applies at rest where it starts: nothing for
+    # an arm that compensates gravity, g(q) for one that does not (a lab's own arm, not only PyBullet).
+    class Far(StillLearner):
+        def reference(self, t, *, out):
+            super().reference(t, out=out)
+            out[0][1] += 0.5
+            return out
+
+    rate = 100.0  # N·m/s: 0.1 N·m per tick
+    arm = FakeArm(gravity_compensated=gravity_compensated)
+    result = loop_over(arm, Far(), limits=limits(torque_rate=np.full(7, rate))).run(START, 0.01)
+    at_rest = np.zeros(7) if gravity_compensated else JACO2.gravity(START)
+    assert np.abs(arm.commands[0] - at_rest).max() <= rate * PERIOD + 1e-9
+    assert result.rate_clips[1] == len(arm.commands)
+
+
 def test_any_other_error_ends_the_motion_is_raised_and_keeps_the_log_and_the_collector() -> None:
     enabled, frozen = gc.isenabled(), gc.get_freeze_count()
     arm = FakeArm()

@@ -15,8 +15,10 @@ simulated study, a Franka over libfranka) at the backend's control rate. One tic
 5. the impedance torque (:meth:`phri.ImpedanceController.torque_implicit`, with the task's scene so
    the run-time clearance wall acts), including g(q);
 6. the safety layer limits it (:meth:`phri.control.SafetyLayer.limit_torque`: torque and
-   torque-rate limits, clips counted) and makes the command: the torque less g(q) for an arm that
-   compensates gravity itself (``backend.gravity_compensated``);
+   torque-rate limits, clips counted; the first command's rate from what the arm applies at rest
+   where it starts: zero, or g(q) for an arm that does not compensate gravity) and makes the
+   command: the torque less g(q) for an arm that compensates gravity itself
+   (``backend.gravity_compensated``);
 7. write the command.
 
 The watchdog stops the arm on a violation (a non-finite value, a limit crossed, late ticks, a clock
@@ -338,13 +340,13 @@ class ControlLoop:
         rows = int(math.floor((duration + self.hold_time) / self.log_period + GRID_TOLERANCE)) + 3
         log = _Log(rows, n)
         result = self.result = LoopResult()
-        self.safety.reset(np.zeros(n) if self.backend.gravity_compensated else None)
         # Garbage frozen now is collected after the run (unfreeze returns it to the oldest generation).
         enabled, froze = gc.isenabled(), gc.get_freeze_count() == 0
         gc.freeze()
         gc.disable()
         try:
             state = self.backend.start(q_start)
+            self.safety.reset(self._at_rest(state))
             self._run(state, float(duration), result, log)
         finally:
             try:
@@ -479,6 +481,19 @@ class ControlLoop:
             return
 
     # -- helpers -----------------------------------------------------------------------------------
+
+    def _at_rest(self, state: RobotState) -> np.ndarray | None:
+        """What the arm applies at rest where it starts, from which the first command's rate is
+        limited: nothing for an arm that compensates gravity, g(q) for one that does not (PyBullet,
+        or a lab's own arm). None for a state that cannot be trusted: the first tick stops then,
+        before any command."""
+        n = self.backend.robot.nq
+        if self.backend.gravity_compensated:
+            return np.zeros(n)
+        q = np.asarray(state.q, dtype=float)
+        if q.shape != (n,) or not np.isfinite(q).all():
+            return None
+        return self.backend.robot.gravity(q)
 
     def _log_row(self, log: _Log, state: RobotState, wall_force: float) -> int:
         row = log.rows

@@ -323,6 +323,10 @@ def test_faults_are_parsed_and_refused_clearly() -> None:
         "drop@0",
     ):
         assert Fault.parse(spec).spec() == spec
+    # spec() is what SimServer hands its child: a time keeps every digit (not six, which moved
+    # this one to another tick).
+    assert Fault.parse("nan:dq@1234.5678").spec() == "nan:dq@1234.5678"
+    assert Fault.parse("stall:0.1234567@0.1").spec() == "stall:0.1234567@0.1"
     for spec, message in [
         ("reflex:joint_wobble", "unknown libfranka error joint_wobble"),
         ("nan:qdd", "nan takes one of q, dq, tau_ext"),

@@ -9,6 +9,7 @@ measured on the robot's clock (RobotState.t), never on the wall clock.
 
 from __future__ import annotations
 
+import collections
 import os
 import signal
 import subprocess
@@ -429,6 +430,39 @@ def test_a_server_that_fails_to_start_is_killed(monkeypatch: pytest.MonkeyPatch)
         assert server.process is None, "the child was left running"
     finally:
         server.stop()
+
+
+def test_stopping_a_server_while_its_output_is_read_leaves_no_thread_error(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """stop() closed the child's output under the thread reading it, which then failed (an
+    unhandled thread exception: an error of whichever test pytest noticed it in); a child that
+    writes much (--log-protocol, many faults) met it. A stand-in child writes without end, and
+    keeping each line takes a while, so that the reader is always busy when stop() comes."""
+    import phri.franka.sim_server as sim_server
+
+    chatty = f"print({READY!r} + ' 127.0.15.8', flush=True)\nwhile True:\n    print('x' * 200, flush=True)\n"
+    monkeypatch.setattr(SimServer, "command", lambda self: [sys.executable, "-c", chatty])
+
+    class Answered:
+        def close(self) -> None:
+            pass
+
+    monkeypatch.setattr(sim_server.socket, "create_connection", lambda *args, **kwargs: Answered())
+
+    class SlowLines(collections.deque):
+        """Keeping a line takes a while: the reader is between two reads when stop() comes."""
+
+        def append(self, line: str) -> None:
+            time.sleep(1e-3)
+            super().append(line)
+
+    for _ in range(3):
+        server = SimServer("127.0.15.8")
+        server.lines = SlowLines(maxlen=100)
+        with server:
+            time.sleep(0.05)
+        assert server.lines, "the output read is kept"
 
 
 # -- phri sim-server ------------------------------------------------------------------------------

@@ -39,6 +39,8 @@ DEFAULT_HOST = "127.0.0.2"
 START_TIMEOUT = 60.0
 #: The server's output lines a SimServer keeps (the latest).
 KEPT_LINES = 1000
+#: How long stopping a SimServer waits for the rest of the child's output to be read [s].
+DRAIN_WAIT = 5.0
 
 
 def check_loopback(host: str) -> str:
@@ -113,6 +115,7 @@ class SimServer:
         self.process: subprocess.Popen[bytes] | None = None
         #: The server's output lines (the latest KEPT_LINES): its ready line, injected faults.
         self.lines: collections.deque[str] = collections.deque(maxlen=KEPT_LINES)
+        self._drain: threading.Thread | None = None
 
     def command(self) -> list[str]:
         """The child's command line."""
@@ -137,13 +140,17 @@ class SimServer:
         ready = threading.Event()
 
         def drain(stream: IO[bytes]) -> None:
-            for raw in stream:
-                line = raw.decode(errors="replace").rstrip()
-                self.lines.append(line)
-                if line.startswith(READY):
-                    ready.set()
+            try:
+                for raw in stream:
+                    line = raw.decode(errors="replace").rstrip()
+                    self.lines.append(line)
+                    if line.startswith(READY):
+                        ready.set()
+            except (ValueError, OSError):
+                pass  # stop() closed the stream: a child that outlived DRAIN_WAIT is dead now
 
-        threading.Thread(target=drain, args=(self.process.stdout,), daemon=True).start()
+        self._drain = threading.Thread(target=drain, args=(self.process.stdout,), daemon=True)
+        self._drain.start()
         try:
             self._wait_ready(ready)
         except BaseException:
@@ -195,6 +202,11 @@ class SimServer:
             if process.poll() is None:
                 process.kill()
             process.wait(timeout=10)
+            # The output read so far is kept: the reader ends at the end of the stream, which comes
+            # once the child is gone; closing it under the reader would end it with an error.
+            if self._drain is not None:
+                self._drain.join(DRAIN_WAIT)
+                self._drain = None
             for stream in (process.stdout, process.stdin):
                 if stream is not None:
                     try:

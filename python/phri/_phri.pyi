@@ -350,6 +350,9 @@ class SafetyLayer:
     """The control loop's per-tick safety checks (joint position, velocity, torque and torque-rate
     limits, the tool's box, late ticks, non-finite values); allocation-free."""
 
+    LATE_AFTER: ClassVar[float]
+    LATE_TICKS: ClassVar[int]
+
     def __new__(
         cls,
         robot: Robot,

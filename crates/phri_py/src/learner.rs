@@ -5,12 +5,11 @@ use std::sync::{Mutex, MutexGuard, TryLockError};
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadwriteArray1, PyUntypedArrayMethods};
 use phri_core::learner::{History, Interaction, Learner, LearnerParams, ReplanLatency, DEFAULT_TRANSITION_SPEED, TIME_SLACK};
 use phri_core::reference::Interpolation;
-use pyo3::exceptions::{PyOverflowError, PyTypeError};
 use pyo3::prelude::*;
 
 use crate::arrays::{vector, ArrayIn};
 use crate::deform::PyDeformation;
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{count, error, IntoPy, Kind};
 use crate::features::PyFeatures;
 use crate::interaction::PyInteractionDetector;
 use crate::trajopt::{PyTrajectoryOptimizer, PyTrajoptInfo};
@@ -56,25 +55,12 @@ pub struct PyLearner {
 // The signature spells the default out so that Python's introspection shows it.
 const _: () = assert!(DEFAULT_TRANSITION_SPEED == 0.8);
 
-/// `value` as a count (an int ≥ 0) for argument `arg`: an InvalidParameterError naming it when out
-/// of range, a TypeError (named by PyO3) when not an int.
-fn count(arg: &str, value: &Bound<'_, PyAny>) -> PyResult<usize> {
-    match value.extract::<usize>() {
-        Ok(v) => Ok(v),
-        Err(e) if e.is_instance_of::<PyOverflowError>(value.py()) => {
-            Err(error(Kind::InvalidParameter, format!("{arg} must be an integer in [0, {}], got {value}", usize::MAX)))
-        }
-        // PyO3 prefixes a TypeError with "argument '<arg>': ".
-        Err(_) => Err(PyTypeError::new_err(format!("must be an int, got {}", value.get_type().qualname()?))),
-    }
-}
-
 fn replan_iterations_arg(value: &Bound<'_, PyAny>) -> PyResult<usize> {
-    count("replan_iterations", value)
+    count("replan_iterations", value, usize::MAX)
 }
 
 fn seeds_arg(value: &Bound<'_, PyAny>) -> PyResult<usize> {
-    count("seeds", value)
+    count("seeds", value, usize::MAX)
 }
 
 /// Locks `learner`, taking over a mutex poisoned by a panic (which phri's code does not make).

@@ -10,7 +10,7 @@ use phri_core::safety::{
 use pyo3::prelude::*;
 
 use crate::arrays::{vector, ArrayIn};
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{count, error, IntoPy, Kind};
 use crate::impedance::Joints;
 use crate::robot::PyRobot;
 
@@ -123,12 +123,26 @@ fn writable<'py>(arg: &str, a: &Bound<'py, PyArray1<f64>>, n: usize) -> PyResult
         .map_err(|e| error(Kind::InvalidParameter, format!("{arg} must be a writable array distinct from the others ({e})")))
 }
 
+fn late_ticks_arg(value: &Bound<'_, PyAny>) -> PyResult<u32> {
+    // u32::MAX fits a usize on every platform PyO3 supports.
+    Ok(count("late_ticks", value, u32::MAX as usize)? as u32)
+}
+
 fn report(status: &SafetyStatus) -> Option<PySafetyViolation> {
     status.violation.map(PySafetyViolation::from)
 }
 
 #[pymethods]
 impl PySafetyLayer {
+    /// A tick more than this many control periods after the previous one is late (the default of
+    /// `late_after`) [-].
+    #[classattr]
+    const LATE_AFTER: f64 = DEFAULT_SAFETY_PARAMS.late_after;
+
+    /// This many late ticks in a row are a violation (the default of `late_ticks`).
+    #[classattr]
+    const LATE_TICKS: u32 = DEFAULT_SAFETY_PARAMS.late_ticks;
+
     #[new]
     #[pyo3(signature = (
         robot, *, tool, position_lower, position_upper, velocity, torque, torque_rate, tool_box = None,
@@ -146,7 +160,7 @@ impl PySafetyLayer {
         tool_box: Option<(ArrayIn<'_>, ArrayIn<'_>)>,
         period: f64,
         late_after: f64,
-        late_ticks: u32,
+        #[pyo3(from_py_with = late_ticks_arg)] late_ticks: u32,
         gravity_compensated: bool,
     ) -> PyResult<Self> {
         let model = robot.model.clone();

@@ -24,10 +24,11 @@ from phri.robots import load as load_description
 __all__ = ["LATE_AFTER", "LATE_TICKS", "SafetyLimits", "safety_limits"]
 
 #: A tick more than this many control periods after the previous one (on the robot's clock) is
-#: late: the robot ticked at least once without a command from phri.
-LATE_AFTER = 1.5
-#: This many late ticks in a row stop the arm (libfranka itself aborts after a few lost commands).
-LATE_TICKS = 3
+#: late: the robot ticked at least once without a command from phri (the core's default, 1.5).
+LATE_AFTER: float = SafetyLayer.LATE_AFTER
+#: This many late ticks in a row stop the arm (libfranka itself aborts after a few lost commands;
+#: the core's default, 3).
+LATE_TICKS: int = SafetyLayer.LATE_TICKS
 
 
 @dataclass(frozen=True, eq=False)

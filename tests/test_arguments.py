@@ -235,7 +235,7 @@ def test_a_subnormal_speed_limit_is_refused_not_a_nan_reference() -> None:
     q = (robot.lower_limits.clip(-3, 3) + robot.upper_limits.clip(-3, 3)) / 2
     trajectory = phri.TimedTrajectory(np.linspace(q, q + 0.5, 11), 5.0)
     with pytest.raises(
-        InvalidParameterError, match=r"^speed_limits \[0\] must be at least 1e-6 rad/s, got 5e-324"
+        InvalidParameterError, match=r"^speed_limits \[0\] must be a finite speed >= 1e-6 rad/s, got 5e-324"
     ):
         trajectory.switch_to(np.linspace(q, q + 0.9, 11), 1.0, np.full(7, 5e-324))
     assert np.isfinite(trajectory.switch_to(np.linspace(q, q + 0.9, 11), 1.0, np.full(7, 1e-6)))

@@ -39,11 +39,15 @@ def test_torque_control_over_the_protocol(server: SimServer) -> None:
         first = backend.start(np.zeros(7))
         assert isinstance(first, RobotState) and first.fault is None
         assert first.q.shape == (7,) and np.all(np.isfinite(first.q))
-        times = []
+        times, states = [], []
         for _ in range(300):
             state = backend.read()
             backend.write(np.zeros(7))  # the robot compensates gravity: zero torque holds the arm
             times.append(state.t)
+            states.append(state)
+        # Each state owns its arrays: a state kept (a log row) is not overwritten by the next read.
+        assert not np.shares_memory(states[0].q, states[1].q)
+        assert not np.shares_memory(states[-1].q, states[-1].tau_ext)
         # The robot's clock advances a millisecond per tick (lateness is measured on it).
         steps = np.diff(times)
         assert np.all(steps > 0) and np.median(steps) == pytest.approx(1e-3, abs=1e-6)

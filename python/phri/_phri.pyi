@@ -1,4 +1,5 @@
-# Type stubs of the native module (checked against it by `make lint`: mypy.stubtest).
+# Type stubs of the native module (checked against it by `make lint`: mypy.stubtest). Types only: the
+# docstrings live in the bindings (crates/phri_py), where help() and the API docs read them.
 from collections.abc import Iterator, Mapping, Sequence
 from os import PathLike
 from typing import Any, ClassVar, Literal, final
@@ -17,6 +18,9 @@ __all__ = [
     "LearnerHistory",
     "PlanLevels",
     "Robot",
+    "SAFETY_LIMITS",
+    "SafetyLayer",
+    "SafetyViolation",
     "Scene",
     "SceneObject",
     "TimedTrajectory",
@@ -47,8 +51,6 @@ UPDATE_RULES: tuple[_UpdateRule, ...]
 
 @final
 class Robot:
-    """A serial-chain robot (kinematics and rigid-body dynamics), read from a URDF."""
-
     @staticmethod
     def from_urdf(path: str | PathLike[str], base: str | None = None, tip: str | None = None) -> Robot: ...
     @staticmethod
@@ -104,8 +106,6 @@ class Robot:
 
 @final
 class SceneObject:
-    """A named object (plane, box, cylinder, sphere) in the robot's base frame [m, rad]."""
-
     SHAPES: ClassVar[list[str]]
     KINDS: ClassVar[list[str]]
     DEFAULT_MARGIN: ClassVar[float]
@@ -150,8 +150,6 @@ class SceneObject:
 
 @final
 class Scene:
-    """Named objects in the robot's base frame (names unique), e.g. a task's [scene]."""
-
     def __new__(cls, objects: Sequence[SceneObject] = ...) -> Scene: ...
     @property
     def objects(self) -> list[SceneObject]: ...
@@ -168,8 +166,6 @@ class Scene:
 
 @final
 class Features:
-    """Task features Φ(ξ) of an (N, n) trajectory, summed over segments (q_{i-1}, q_i], i = 1..N-1."""
-
     def __new__(
         cls,
         robot: Robot,
@@ -199,8 +195,6 @@ class Features:
 
 @final
 class UpdateInfo:
-    """What one weight update did."""
-
     @property
     def chosen(self) -> int | None: ...
     @property
@@ -212,8 +206,6 @@ class UpdateInfo:
 
 @final
 class WeightUpdate:
-    """w ← clip(w − α ⊙ ΔΦ, lower, upper) by rule "all", "max" or "confidence"."""
-
     def __new__(
         cls,
         step: _Array,
@@ -246,8 +238,6 @@ def relevance(delta_phi: _Array, sensitivity: _Array, u_h: _Array) -> _F64: ...
 
 @final
 class InteractionDetector:
-    """Per-joint torque thresholds [N·m] (default the JACO2's 8, 8, 8, 2, 1, 1, 1) and bias."""
-
     def __new__(cls, thresholds: _Array | None = None, bias: _Array | None = None) -> InteractionDetector: ...
     @property
     def thresholds(self) -> _F64: ...
@@ -257,8 +247,6 @@ class InteractionDetector:
 
 @final
 class TimedTrajectory:
-    """(N, n) waypoints evenly spaced over [0, duration] s, interpolated "cubic" or "linear"."""
-
     def __new__(
         cls, waypoints: _Array, duration: float, interpolation: Literal["cubic", "linear"] = "cubic"
     ) -> TimedTrajectory: ...
@@ -284,8 +272,6 @@ class TimedTrajectory:
 
 @final
 class ImpedanceController:
-    """Impedance law: eq. 6 (`torque`) or, with a desired inertia, eq. 5 (`torque_full`) [N·m]."""
-
     def __new__(
         cls,
         robot: Robot,
@@ -336,10 +322,89 @@ class ImpedanceController:
     @property
     def gravity_compensation(self) -> bool: ...
 
+#: The limits a SafetyViolation can name (defined once, in the core's `safety::Limit::NAMES`).
+_SafetyLimit = Literal["non_finite", "joint_position", "joint_velocity", "tool_box", "late_ticks", "clock"]
+SAFETY_LIMITS: tuple[_SafetyLimit, ...]
+
+@final
+class SafetyViolation:
+    """A limit the safety layer found crossed: which, the value and the bound, in the value's unit."""
+
+    @property
+    def limit(self) -> _SafetyLimit: ...
+    @property
+    def quantity(self) -> Literal["t", "q", "qd", "tau_ext", "tau", "tool_position", "tick_gap"]: ...
+    @property
+    def index(self) -> int: ...
+    @property
+    def value(self) -> float: ...
+    @property
+    def bound(self) -> float: ...
+    @property
+    def message(self) -> str: ...
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+
+@final
+class SafetyLayer:
+    """The control loop's per-tick safety checks (joint position, velocity, torque and torque-rate
+    limits, the tool's box, late ticks, non-finite values); allocation-free."""
+
+    LATE_AFTER: ClassVar[float]
+    LATE_TICKS: ClassVar[int]
+
+    def __new__(
+        cls,
+        robot: Robot,
+        *,
+        tool: str,
+        position_lower: _Array,
+        position_upper: _Array,
+        velocity: _Array,
+        torque: _Array,
+        torque_rate: _Array,
+        tool_box: tuple[_Array, _Array] | None = None,
+        period: float = 0.001,
+        late_after: float = 1.5,
+        late_ticks: int = 3,
+        gravity_compensated: bool = False,
+    ) -> SafetyLayer: ...
+    def reset(self, previous_command: _Array | None = None) -> None: ...
+    def check_state(self, t: float, q: _Array, qd: _Array, tau_ext: _Array) -> SafetyViolation | None: ...
+    def limit_torque(self, q: _Array, tau: _F64, command: _F64) -> SafetyViolation | None: ...
+    @property
+    def torque_saturated(self) -> int: ...
+    @property
+    def rate_saturated(self) -> int: ...
+    @property
+    def torque_clips(self) -> npt.NDArray[np.uint64]: ...
+    @property
+    def rate_clips(self) -> npt.NDArray[np.uint64]: ...
+    @property
+    def position_lower(self) -> _F64: ...
+    @property
+    def position_upper(self) -> _F64: ...
+    @property
+    def velocity(self) -> _F64: ...
+    @property
+    def torque(self) -> _F64: ...
+    @property
+    def torque_rate(self) -> _F64: ...
+    @property
+    def tool_box(self) -> tuple[_F64, _F64] | None: ...
+    @property
+    def tool(self) -> str: ...
+    @property
+    def period(self) -> float: ...
+    @property
+    def late_after(self) -> float: ...
+    @property
+    def late_ticks(self) -> int: ...
+    @property
+    def gravity_compensated(self) -> bool: ...
+
 @final
 class Deformation:
-    """ξ_H = ξ_R + μ·A⁻¹·U_H (eq. 7): a push at `index` moves the next `window` waypoints by μ·H·u_H."""
-
     def __new__(
         cls,
         *,
@@ -363,8 +428,6 @@ class Deformation:
 
 @final
 class TrajoptInfo:
-    """What a trajectory optimisation did."""
-
     @property
     def iterations(self) -> int: ...
     @property
@@ -390,9 +453,6 @@ class TrajoptInfo:
 
 @final
 class TrajectoryOptimizer:
-    """ξ_R = argmin w·Φ(ξ) (eq. 4) over N waypoints, start and goal fixed, joint limits as bounds;
-    by default within the velocity limits (needs `duration` [s]) and clear of the features' scene."""
-
     CLEARANCE_TOLERANCE: ClassVar[float]
     STEP_TOLERANCE: ClassVar[float]
     SELF_MARGIN: ClassVar[float]
@@ -447,8 +507,6 @@ class TrajectoryOptimizer:
 
 @final
 class PlanLevels:
-    """A plan with the plans of its optimiser's coarse levels it came from."""
-
     @property
     def plan(self) -> _F64: ...
     def level(self, k: int) -> _F64: ...
@@ -456,7 +514,7 @@ class PlanLevels:
 
 @final
 class Learner:
-    """Algorithm 1: deform, update and replan at every sampled interaction."""
+    TIME_SLACK: ClassVar[float]
 
     def __new__(
         cls,
@@ -476,9 +534,13 @@ class Learner:
         transition_speed: float = 0.8,
         replan_iterations: int = 0,
         seeds: int = 0,
+        replan_latency: float | None = 0.0,
     ) -> Learner: ...
-    def observe(self, t: float, tau_measured: _Array) -> tuple[bool, bool, bool]: ...
+    def observe(self, t: float, tau_measured: _Array) -> tuple[bool, bool, bool]:
+        """(sampled, interacted, replanned); replanned: a replan's outcome arrived at this call
+        (inline: the robot replanned; with a worker: a plan was adopted or rejected)."""
     def reference(self, t: float, *, out: Sequence[_F64] | None = None) -> _Triple: ...
+    def reset(self) -> None: ...
     @property
     def weights(self) -> _F64: ...
     @property
@@ -487,12 +549,26 @@ class Learner:
     def learning(self) -> bool: ...
     @property
     def replan_pending(self) -> bool: ...
+    @property
+    def replan_running_since(self) -> float | None:
+        """Time [s] of the push whose replan is under way, or None."""
+    @property
+    def superseded_replans(self) -> int: ...
+    @property
+    def last_replan_converged(self) -> bool | None: ...
+    @property
+    def adopted(self) -> bool:
+        """Whether the last ``observe`` adopted a new plan."""
+    @property
+    def replan_latency(self) -> float | None: ...
     def history(self) -> LearnerHistory: ...
+    def _debug_stall_worker(self, seconds: float) -> None:
+        """Testing only: the worker's next replan first stalls for ``seconds`` [s]."""
+    def _debug_panic_worker(self) -> None:
+        """Testing only: the worker's next replan panics (observe then raises ReplanWorkerError)."""
 
 @final
 class LearnerHistory:
-    """A learner's record as arrays: a row per sampled interaction (M) or per plan (P)."""
-
     @property
     def t(self) -> _F64: ...
     @property

@@ -34,10 +34,6 @@ pub(crate) fn hermite_rate(s: f64) -> [f64; 4] {
 /// of a plan's reference overflow (a duration of 1e-300 s gave ±inf).
 pub const MIN_WAYPOINT_SPACING: f64 = 1e-4;
 
-/// Slowest speed limit of [`TimedTrajectory::switch_to`] [rad/s or m/s]: a subnormal one made the
-/// blend last for ever and the reference NaN.
-pub const MIN_SPEED_LIMIT: f64 = 1e-6;
-
 /// Longest duration of a trajectory [s] (about 11.6 days).
 pub const MAX_DURATION: f64 = 1e6;
 
@@ -103,6 +99,10 @@ struct Blend {
     offset: Vec<f64>,
     rate: Vec<f64>,
 }
+
+/// Smallest speed limit of a blend ([`TimedTrajectory::switch_to`]) [rad/s]: slower than a degree
+/// in five hours; a blend at it already lasts years.
+pub const MIN_SPEED_LIMIT: f64 = 1e-6;
 
 /// Points of a blend at which the speed limit is checked.
 const BLEND_CHECKS: usize = 64;
@@ -189,10 +189,12 @@ impl TimedTrajectory {
         check_finite("t", &[t])?;
         if !speed_limits.is_empty() {
             crate::error::check_vector("speed_limits", speed_limits, self.n)?;
-            if let Some((j, v)) = speed_limits.iter().enumerate().find(|(_, v)| !(**v >= MIN_SPEED_LIMIT)) {
+            // A smaller limit (a subnormal one) would make the blend time overflow and the
+            // reference NaN.
+            if let Some((j, v)) = speed_limits.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= MIN_SPEED_LIMIT)) {
                 return Err(PhriError::invalid(
                     "speed_limits",
-                    format!("[{j}] must be at least {MIN_SPEED_LIMIT:e} rad/s, got {v:e}"),
+                    format!("[{j}] must be a finite speed >= {MIN_SPEED_LIMIT:e} rad/s, got {v:e}"),
                 ));
             }
         }

@@ -49,7 +49,7 @@ impl<'a, 'py> FromPyObject<'a, 'py> for Joints<'py> {
 impl Joints<'_> {
     /// The values, finite and within ±MAX_MAGNITUDE; a fast-path slice's length is checked by the
     /// core, which names `arg`.
-    fn values(&self, arg: &str, n: usize) -> PyResult<Cow<'_, [f64]>> {
+    pub(crate) fn values(&self, arg: &str, n: usize) -> PyResult<Cow<'_, [f64]>> {
         match self {
             Joints::Fast(a) => {
                 let values = match a.as_slice() {

@@ -20,6 +20,7 @@ from phri._extras import require
 from phri._phri import Robot
 from phri.control.backend import RobotState
 from phri.exceptions import ConnectionLostError, InvalidParameterError, RobotFaultError
+from phri.franka.faults import ERROR_NAMES
 
 __all__ = ["COMMAND_PORT", "CollisionThresholds", "FrankaBackend", "fault_message"]
 
@@ -63,10 +64,11 @@ class CollisionThresholds:
 
 def fault_message(state: Any) -> str | None:
     """The robot's own reflex or error state in `state` (a pylibfranka RobotState) as a message
-    naming it and the recovery to do; None while there is none."""
+    naming the mode, the active errors (libfranka's ``Errors`` names, :data:`ERROR_NAMES`) and the
+    recovery to do; None while there is none."""
     mode = getattr(state.robot_mode, "name", str(state.robot_mode))
     errors = state.current_errors
-    active = [name for name in dir(errors) if not name.startswith("_") and getattr(errors, name) is True]
+    active = [name for name in ERROR_NAMES if getattr(errors, name, False) is True] if errors else []
     if not active and mode not in MODE_RECOVERY:
         return None
     parts = [f"robot mode {mode}"]
@@ -74,6 +76,20 @@ def fault_message(state: Any) -> str | None:
         parts.append("errors: " + ", ".join(active))
     recovery = MODE_RECOVERY.get(mode, MODE_RECOVERY["Reflex"])
     return f"the robot reports {'; '.join(parts)}: {recovery}"
+
+
+def _nonfinite_message(block: np.ndarray) -> str:
+    """Names the non-finite entries of a (3, 7) block of q, dq, tau_ext."""
+    bad = [
+        f"{field}[{j}]={block[i, j]}"
+        for i, field in enumerate(("q", "dq", "tau_ext"))
+        for j in range(JOINTS)
+        if not math.isfinite(block[i, j])
+    ]
+    return (
+        "the robot's state has non-finite values (" + ", ".join(bad) + "); a sensor or the link "
+        "failed: stop, check the arm and its network before running again"
+    )
 
 
 class FrankaBackend:
@@ -120,6 +136,12 @@ class FrankaBackend:
         self._control: Any = None
         self._t0: float | None = None
         self._torques = [0.0] * JOINTS
+        #: The robot modes that are faults (pylibfranka's RobotMode members; compared per tick).
+        self._fault_modes = frozenset(getattr(self._franka.RobotMode, m) for m in MODE_RECOVERY)
+        #: The fault that ended control (every later read repeats it).
+        self._fault: RobotState | None = None
+        #: The last pylibfranka RobotState read, for fields phri does not use (None before start).
+        self.raw: Any = None
 
     # -- connection ------------------------------------------------------------------------------
 
@@ -165,11 +187,18 @@ class FrankaBackend:
         """Connects, clears a pending reflex, sets the collision thresholds and the load, and starts
         torque control. The arm stays where it is (`q_start` is for the loop to drive it to)."""
         robot = self._connect()
-        self._robot = robot
+        self._robot, self._t0, self._fault = robot, None, None
         try:
             state = robot.read_once()
-            if fault_message(state) is not None:
-                robot.automatic_error_recovery()
+            pending = fault_message(state)
+            if pending is not None:
+                try:
+                    robot.automatic_error_recovery()
+                except self._franka.CommandException as e:
+                    self.stop()
+                    raise RobotFaultError(
+                        f"host {self.host!r}: {pending}; phri's automatic error recovery was refused: {e}"
+                    ) from None
             th = self.thresholds
             robot.set_collision_behavior(th.joint_lower, th.joint_upper, th.force_lower, th.force_upper)
             if self.load is not None:
@@ -189,6 +218,12 @@ class FrankaBackend:
     # -- one tick ----------------------------------------------------------------------------------
 
     def read(self) -> RobotState:
+        """Blocks until the arm's next 1 kHz tick and returns its state (libfranka's ``readOnce``);
+        a lost connection is a ConnectionLostError. ``tau_ext`` is the person's push on the arm
+        [N·m] (phri's sign, as in simulation): the negative of libfranka's ``tau_ext_hat_filtered``,
+        which libfranka gives as the torque the robot exerts on its surroundings."""
+        if self._fault is not None:
+            return self._fault
         if self._control is None:
             raise ConnectionLostError(f"host {self.host!r}: not connected (call start first)")
         try:
@@ -196,25 +231,32 @@ class FrankaBackend:
         except self._franka.NetworkException as e:
             raise ConnectionLostError(f"host {self.host!r}: the robot stopped answering: {e}") from None
         except self._franka.ControlException as e:
-            return self._state(None, fault=f"the robot aborted control: {e}; {MODE_RECOVERY['Reflex']}")
+            # libfranka's message says why (a reflex and its errors, or the user stop).
+            mode = "UserStopped" if "User Stop" in str(e) else "Reflex"
+            self._fault = self._state(None, fault=f"the robot aborted control: {e}; {MODE_RECOVERY[mode]}")
+            return self._fault
         return self._state(state)
 
     def _state(self, state: Any, fault: str | None = None) -> RobotState:
         if state is None:
             nan = np.full(JOINTS, np.nan)
             return RobotState(t=math.nan, q=nan, qd=nan.copy(), tau_ext=nan.copy(), fault=fault)
+        self.raw = state
         t = state.time.to_sec()
         if self._t0 is None:
             self._t0 = t
-        return RobotState(
-            t=t - self._t0,
-            q=np.asarray(state.q, dtype=float),
-            qd=np.asarray(state.dq, dtype=float),
-            tau_ext=np.asarray(state.tau_ext_hat_filtered, dtype=float),
-            fault=fault or fault_message(state),
-        )
+        # One array per tick (rows q, dq, tau_ext), fresh: a caller may keep the state it was given.
+        block = np.array((state.q, state.dq, state.tau_ext_hat_filtered))
+        np.negative(block[2], out=block[2])
+        if state.current_errors or state.robot_mode in self._fault_modes:
+            fault = fault or fault_message(state)
+        if not np.isfinite(block).all():
+            fault = fault or _nonfinite_message(block)
+        return RobotState(t=t - self._t0, q=block[0], qd=block[1], tau_ext=block[2], fault=fault)
 
     def write(self, tau: np.ndarray) -> None:
+        """Commands the joint torque `tau` [N·m] for the tick just read, gravity excluded (the robot
+        compensates it); libfranka's ``writeOnce``."""
         if self._control is None:
             raise ConnectionLostError(f"host {self.host!r}: not connected (call start first)")
         torques = self._torques
@@ -228,7 +270,9 @@ class FrankaBackend:
             raise RobotFaultError(f"host {self.host!r}: the robot aborted control: {e}") from None
 
     def stop(self) -> None:
-        robot, self._robot, self._control = self._robot, None, None
+        """Ends torque control and releases the arm; idempotent, never raises for an arm already
+        gone."""
+        robot, self._robot, self._control, self._fault = self._robot, None, None, None
         if robot is not None:
             try:
                 robot.stop()

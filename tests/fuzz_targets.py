@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import sys
 import tempfile
 from collections.abc import Callable
@@ -31,7 +32,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import phri
+from phri.control import ControlLoop, RobotState, SafetyLayer, safety_limits
 from phri.exceptions import NotConvergedError, PhriError, PlanningError
+from phri.robots import load as load_description
+from phri.sim.participant import ParticipantParams, load_population
 
 # -- what arguments are drawn from ----------------------------------------------------------------
 
@@ -550,7 +554,7 @@ TARGETS: dict[str, Target] = {
         _optimizer, lambda o, **kw: o.objective(**kw), {"xi": arrays((11, N)), "weights": arrays((4,), -5, 5)}
     ),
     "PlanLevels.level": Target(_levels, lambda ol, **kw: ol[1].level(**kw), {"k": ints(0, 3)}),
-    # The learner (the other helper's: its defects are reported, not fixed here)
+    # The learner
     "Learner": Target(
         _learner_parts,
         lambda parts, **kw: phri.Learner(**parts, **kw).reference(1.0),
@@ -561,10 +565,9 @@ TARGETS: dict[str, Target] = {
             "duration": scalars(0, 30),
             "sample_period": scalars(0, 1),
             "transition_speed": scalars(0, 2),
-            # Valid counts only: out-of-range ones are a known defect of the Learner (issue 16 #20,
-            # its own kwargs), pinned by test_fuzz.py's strict xfail until it is fixed.
-            "replan_iterations": st.integers(0, 20),
-            "seeds": st.integers(0, 4),
+            "replan_iterations": ints(0, 20),
+            "seeds": ints(0, 4),
+            "replan_latency": st.one_of(st.none(), scalars(0, 0.5)),
         },
         weight=0.5,
     ),
@@ -597,10 +600,10 @@ TOML_VALUES = st.one_of(
 
 
 @st.composite
-def task_texts(draw: st.DrawFn) -> str:
-    """A shipped task file with a few of its values replaced, lines dropped or doubled, or text put in."""
-    name = draw(st.sampled_from(phri.task_names()))
-    lines = (files("phri") / "tasks" / f"{name}.toml").read_text().splitlines()
+def mutated_texts(draw: st.DrawFn, texts: list[str]) -> str:
+    """One of `texts` (a shipped file) with a few of its values replaced, lines dropped or doubled,
+    or text put in."""
+    lines = draw(st.sampled_from(texts)).splitlines()
     for _ in range(draw(st.integers(1, 3))):
         i = draw(st.integers(0, len(lines) - 1))
         match draw(st.sampled_from(["value", "value", "drop", "double", "insert"])):
@@ -619,6 +622,10 @@ def task_texts(draw: st.DrawFn) -> str:
     return "\n".join(lines) + "\n"
 
 
+def task_texts() -> st.SearchStrategy[str]:
+    return mutated_texts([(files("phri") / "tasks" / f"{n}.toml").read_text() for n in phri.task_names()])
+
+
 def _load_task_text(_: Any, *, text: str) -> Any:
     TASK_FILE.write_text(text, encoding="utf-8", errors="surrogatepass")
     return phri.load_task(TASK_FILE).duration
@@ -626,6 +633,177 @@ def _load_task_text(_: Any, *, text: str) -> Any:
 
 TARGETS["load_task.file"] = Target(
     lambda: None, _load_task_text, {"text": task_texts()}, extra={"names": [str(TASK_FILE)]}
+)
+
+# The population parser (phri.sim.participant.population) on files near the shipped one, and a draw.
+POPULATION_FILE = TASK_FILE.with_name("population.toml")
+
+
+def _load_population_text(_: Any, *, text: str, study_seed: Any, participant: Any) -> Any:
+    POPULATION_FILE.write_text(text, encoding="utf-8", errors="surrogatepass")
+    return load_population(POPULATION_FILE).draw(study_seed, participant).as_dict()
+
+
+TARGETS["load_population.file"] = Target(
+    lambda: None,
+    _load_population_text,
+    {
+        "text": mutated_texts([(files("phri") / "populations" / "default.toml").read_text()]),
+        "study_seed": ints(0, 100),
+        "participant": ints(0, 100),
+    },
+    extra={"names": [str(POPULATION_FILE)]},
+)
+
+
+# Robot descriptions (phri.robots) near the shipped ones, read into the safety layer's limits.
+ROBOT_FOLDER = TASK_FILE.with_name("robot")
+shutil.copytree(Path(str(files("phri") / "robots" / "jaco2")), ROBOT_FOLDER)
+
+
+def _robot_description_text(_: Any, *, text: str) -> Any:
+    (ROBOT_FOLDER / "robot.toml").write_text(text, encoding="utf-8", errors="surrogatepass")
+    description = load_description(ROBOT_FOLDER / "robot.toml")
+    robot = phri.Robot.from_urdf_string(description.urdf_text(), description.base, description.tip)
+    return safety_limits(robot, description, phri.load_task("table"))
+
+
+TARGETS["robot_description.file"] = Target(
+    lambda: None,
+    _robot_description_text,
+    {"text": mutated_texts([(files("phri") / "robots" / r / "robot.toml").read_text() for r in ("jaco2",)])},
+    extra={"names": [str(ROBOT_FOLDER / "robot.toml")]},
+    weight=0.5,
+)
+
+
+# The control loop's safety layer and the loop itself (phri.control), on the JACO2's limits for the
+# table task.
+LIMITS = safety_limits(JACO2, "jaco2", phri.load_task("table"))
+PERIOD = 1e-3
+
+
+def _safety_layer(**kw: Any) -> SafetyLayer:
+    return LIMITS.layer(JACO2, period=PERIOD, gravity_compensated=True, **kw)
+
+
+def _safety_tick(layer: SafetyLayer, t: Any, q: Any, qd: Any, tau_ext: Any, tau: Any) -> Any:
+    """One tick of the layer (fresh per example: it keeps the clock); what it commands must be
+    finite whatever it was given."""
+    layer.reset()
+    command = np.zeros(N)
+    return layer.check_state(t, q, qd, tau_ext), layer.limit_torque(q, tau, command), command
+
+
+READING = st.lists(reals(-5.0, 5.0), min_size=N, max_size=N).map(np.array)
+
+
+class _FakeArm:
+    """An in-memory JACO2 that holds still at Q_MID, except that from tick `at` on its reading is
+    `reading` (the robot's clock, q, qd or tau_ext replaced): a sensor fault, a frozen clock."""
+
+    gravity_compensated = True
+    period = PERIOD
+
+    def __init__(self, at: int, field: str, reading: Any) -> None:
+        self.robot, self.at, self.field, self.reading = JACO2, at, field, reading
+        self.k, self.commands = 0, []
+
+    def _state(self) -> RobotState:
+        state = RobotState(t=self.k * PERIOD, q=Q_MID.copy(), qd=np.zeros(N), tau_ext=np.zeros(N))
+        if self.k >= self.at:
+            setattr(state, self.field, self.reading)
+        return state
+
+    def start(self, q_start: np.ndarray) -> RobotState:
+        self.k = 0
+        return self._state()
+
+    def read(self) -> RobotState:
+        self.k += 1
+        return self._state()
+
+    def write(self, tau: np.ndarray) -> None:
+        self.commands.append(tau.copy())
+
+    def stop(self) -> None:
+        pass
+
+
+def _control_loop(*, fault: tuple[int, str, Any], q_start: Any, duration: Any, **kw: Any) -> Any:
+    arm = _FakeArm(*fault)
+    loop = ControlLoop(
+        arm, _learner(), phri.ImpedanceController(JACO2, gravity_compensation=True), LIMITS, **kw
+    )
+    result = loop.run(q_start, duration, check=False)
+    return (result.stop.reason if result.stop else None), np.array(arm.commands)
+
+
+TARGETS["SafetyLayer"] = Target(
+    lambda: None,
+    lambda _, **kw: _safety_tick(
+        SafetyLayer(JACO2, **kw), 0.0, Q_MID, np.zeros(N), np.zeros(N), JACO2.gravity(Q_MID)
+    ),
+    {
+        "tool": names([*FRAMES[-2:]]),
+        "position_lower": arrays((N,), -7, 0),
+        "position_upper": arrays((N,), 0, 7),
+        "velocity": arrays((N,), 0, 2),
+        "torque": arrays((N,), 0, 40),
+        "torque_rate": arrays((N,), 0, 5000),
+        "tool_box": st.one_of(st.none(), st.tuples(arrays((3,), -2, 0), arrays((3,), 0, 2))),
+        "period": scalars(0, 0.01),
+        "late_after": scalars(0, 5),
+        "late_ticks": ints(1, 5),
+        "gravity_compensated": st.booleans(),
+    },
+)
+TARGETS["SafetyLayer.tick"] = Target(  # a fresh layer per example
+    lambda: None,
+    lambda _, **kw: _safety_tick(_safety_layer(), **kw),
+    {
+        "t": scalars(-1, 1),
+        "q": st.one_of(VEC, READING),
+        "qd": st.one_of(VEC, READING),
+        "tau_ext": st.one_of(VEC, READING),
+        "tau": st.one_of(arrays((N,), -50, 50), READING),
+    },
+)
+TARGETS["ControlLoop"] = Target(  # a run of at most 50 ticks with a reading gone bad at some tick
+    lambda: None,
+    lambda _, **kw: _control_loop(**kw),
+    {
+        "fault": st.tuples(
+            st.integers(0, 40),
+            st.sampled_from(["t", "q", "qd", "tau_ext"]),
+            st.one_of(READING, reals(-1, 1)),
+        ).map(lambda f: f if (f[1] == "t") == isinstance(f[2], float) else (f[0], "t", 0.0)),
+        # Mostly valid settings, so that most examples run ticks and meet the bad reading.
+        "q_start": st.one_of(st.just(Q_MID), st.just(Q_MID), VEC),
+        "duration": st.one_of(st.just(0.04), st.just(0.04), scalars(0, 0.05)),
+        "hold_time": st.one_of(st.just(0.01), st.just(0.01), scalars(0, 0.02)),
+        "late_ticks": st.one_of(st.just(3), st.just(3), ints(1, 5)),
+        "late_after": st.one_of(st.just(1.5), st.just(1.5), scalars(0, 5)),
+        "log_rate": st.one_of(st.just(100.0), st.just(100.0), scalars(0, 1000)),
+    },
+    weight=0.5,
+)
+
+# The simulated participant (phri.sim.participant): one person's parameters, and population files
+# near the shipped one.
+TARGETS["ParticipantParams"] = Target(
+    lambda: None,
+    lambda _, *, attempt, **kw: ParticipantParams(**kw).for_attempt(attempt).as_dict(),
+    {
+        "tolerance": scalars(0, 0.1),
+        "release": scalars(0, 1),
+        "delay": scalars(0, 1),
+        "max_force": scalars(0, 50),
+        "bout": scalars(0, 5),
+        "practice": scalars(0, 1),
+        "rate": scalars(0, 20),
+        "attempt": ints(1, 5),
+    },
 )
 
 

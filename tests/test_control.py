@@ -262,6 +262,19 @@ def test_a_non_finite_position_ends_the_motion_at_once_without_a_command() -> No
     assert all(np.isfinite(c).all() for c in arm.commands)
 
 
+@pytest.mark.parametrize(("field", "value"), [("q", 1e12), ("qd", 1e300), ("tau_ext", -1e300)])
+def test_an_absurd_finite_reading_stops_the_arm_as_a_non_finite_one_does(field: str, value: float) -> None:
+    """Found by the fuzz suite: a reading beyond ±1e9 passed the safety layer (or crossed a limit),
+    and then the learner or the hold's impedance law refused it with an error instead of a stop."""
+    arm = FakeArm(script=at(30, _bump(1, value, field)))
+    result = loop_over(arm).run(START, 1.0, check=False)
+    assert result.stop is not None and (result.stop.reason, result.stop.quantity) == ("non_finite", field)
+    assert "beyond ±1e9" in result.stop.message and arm.stops == 1
+    # A position or velocity reading cannot be held from; the person's torque can.
+    assert (result.held == 0.0) == (field != "tau_ext")
+    assert all(np.isfinite(c).all() for c in arm.commands)
+
+
 def test_a_lost_connection_ends_the_motion_and_keeps_the_log() -> None:
     def fail(k: int) -> None:
         if k == 120:

@@ -64,22 +64,3 @@ def test_fuzz(target: str) -> None:
         )
         report = "\n".join(line for line in lines if not line.startswith("CALL"))[-6000:]
         pytest.fail(f"{target}: {how}; the last call: {calls[-1:]}\n{report}")
-
-
-@pytest.mark.xfail(
-    strict=True,
-    raises=OverflowError,
-    reason="issue 16 #20, the Learner's own integer kwargs: seeds=-1 and replan_iterations=2**64 are a bare "
-    "OverflowError (left to the Learner's helper; remove this mark when fixed)",
-)
-@pytest.mark.parametrize("kwargs", [{"seeds": -1}, {"replan_iterations": 2**64}])
-def test_the_learner_names_its_integer_arguments_out_of_range(kwargs: dict[str, int]) -> None:
-    from fuzz_targets import Q_MID, _learner_parts
-
-    import phri
-    from phri.exceptions import InvalidParameterError
-
-    with pytest.raises(InvalidParameterError, match=rf"^{next(iter(kwargs))}"):
-        phri.Learner(
-            **_learner_parts(), weights=[1.0, 1.0], start=Q_MID, goal=Q_MID + 0.1, duration=8.0, **kwargs
-        )

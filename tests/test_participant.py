@@ -370,6 +370,16 @@ def test_a_population_file_round_trips_and_extends_another(tmp_path: Path) -> No
         ('extends = "nobody"\n', r"key 'extends': population: unknown population 'nobody'"),
         ('[about]\nauthor = "me"\n', r"unknown key 'about.author'"),
         ("parameters = [\n", "not valid TOML"),
+        # Found by the fuzz suite (a TypeError and a bare ValueError before):
+        (
+            'extends = "default"\n[parameters.delay]\ndistribution = [[1]]\n',
+            r"key 'parameters.delay.distribution' must be one of fixed, lognormal",
+        ),
+        (
+            DELAY + 'distribution = "lognormal"\nmedian = 0.2\nsigma = 1e300\n',
+            r"key 'parameters.delay.median' must keep delay .*a lognormal distribution reaches inf",
+        ),
+        ("seed = " + "9" * 5000 + "\n", r"not a population file phri can read \(ValueError: Exceeds"),
     ],
 )
 def test_bad_population_files_name_the_file_and_key(tmp_path: Path, text: str, pattern: str | None) -> None:
@@ -382,6 +392,16 @@ def test_bad_population_files_name_the_file_and_key(tmp_path: Path, text: str, p
         ConfigError, match=f"^{path}: .*{pattern}" if "unknown population" not in pattern else pattern
     ):
         load_population(path)
+
+
+@pytest.mark.parametrize(
+    ("seed", "participant", "name"),
+    [(-1, 1, "study_seed"), (None, 1, "study_seed"), (0, -1, "participant"), (0, 1.0, "participant")],
+)
+def test_a_draw_names_a_seed_or_participant_out_of_range(seed, participant, name) -> None:
+    # numpy's SeedSequence raised a bare ValueError for -1 and drew at random for None.
+    with pytest.raises(InvalidParameterError, match=f"^{name} must be an integer >= 0, got "):
+        default_population().draw(seed, participant)
 
 
 def test_a_missing_population_file_is_a_clear_error(tmp_path: Path) -> None:

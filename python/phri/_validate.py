@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -13,7 +14,12 @@ import numpy as np
 
 from phri.exceptions import ConfigError
 
-__all__ = ["Reader", "did_you_mean", "finite", "is_integer", "must_be", "unknown_key"]
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["Reader", "did_you_mean", "finite", "is_integer", "must_be", "parse_toml", "unknown_key"]
 
 _NOTHING: Any = object()
 
@@ -144,3 +150,15 @@ def decode_utf8(raw: bytes, error: Callable[[int, int, bytes], Exception]) -> st
     except UnicodeDecodeError as e:
         raise error(raw[: e.start].count(b"\n") + 1, e.start, raw[e.start : e.end]) from None
     return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def parse_toml(text: str, source: str, what: str, error: type[Exception] = ConfigError) -> dict[str, Any]:
+    """`text` parsed as TOML; an `error` naming `source` when it is not TOML, or is TOML that
+    Python's parser cannot hold (an integer of thousands of digits, arrays nested thousands deep).
+    `what` names the kind of file ("a task file")."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise error(f"{source}: not valid TOML ({e})") from None
+    except (ValueError, RecursionError) as e:
+        raise error(f"{source}: not {what} phri can read ({type(e).__name__}: {e})") from None

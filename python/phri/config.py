@@ -15,7 +15,6 @@ import functools
 import math
 import os
 import stat
-import sys
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -32,14 +31,9 @@ from phri._phri import (
     SceneObject,
     TrajectoryOptimizer,
 )
-from phri._validate import Reader, decode_utf8, did_you_mean, is_integer
+from phri._validate import Reader, decode_utf8, did_you_mean, is_integer, parse_toml
 from phri.exceptions import ConfigError, PhriError, UnknownNameError
 from phri.robots import SAFETY_KEYS, SafetySpec, read_safety
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = ["FeatureSpec", "Task", "TaskSafety", "load_task", "task_names"]
 
@@ -379,13 +373,7 @@ def load_task(name_or_path: str | Path) -> Task:
         res = resources.files("phri").joinpath("tasks", f"{name}.toml")
         source = f"phri/tasks/{name}.toml"
         text = _read_text(source, res)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{source}: not valid TOML ({e})") from None
-    except (ValueError, RecursionError) as e:  # an integer of thousands of digits, arrays nested deeply
-        raise ConfigError(f"{source}: not a task file phri can read ({type(e).__name__}: {e})") from None
-    return _parse(data, source)
+    return _parse(parse_toml(text, source, "a task file"), source)
 
 
 def _check_regular_file(path: Path) -> None:

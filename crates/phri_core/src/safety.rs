@@ -19,7 +19,7 @@
 use std::sync::Arc;
 
 use crate::data::RobotData;
-use crate::error::{check_finite, check_vector, PhriError, Result};
+use crate::error::{check_finite, check_vector, PhriError, Result, MAX_MAGNITUDE};
 use crate::model::{FrameId, RobotModel};
 
 /// A box of the base frame [m]: `lower[i] <= p[i] <= upper[i]` on each axis x, y, z.
@@ -74,7 +74,9 @@ impl Default for SafetyParams {
 /// Which limit a violation crossed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Limit {
-    /// A NaN or infinite value (which one: [`Violation::quantity`]).
+    /// A NaN or infinite value (which one: [`Violation::quantity`]), or a reading beyond
+    /// ±[`MAX_MAGNITUDE`] (no arm reads 10⁹ rad, rad/s or N·m: the sensor or the link failed,
+    /// and every later step of the tick would refuse it).
     NonFinite,
     /// A joint outside its position limits less the margin.
     JointPosition,
@@ -306,7 +308,7 @@ impl SafetyLayer {
 
     /// Checks the state read at robot time `t` [s]: q [rad], q̇ [rad/s], τ_ext [N·m], each of the
     /// model's joint count (else an error). Returns the first limit crossed, in this order: a
-    /// non-finite value, a clock that did not advance, late ticks, joint positions, joint velocities, the tool box.
+    /// non-finite value (or one beyond ±[`MAX_MAGNITUDE`]), a clock that did not advance, late ticks, joint positions, joint velocities, the tool box.
     pub fn check_state(&mut self, t: f64, q: &[f64], qd: &[f64], tau_ext: &[f64]) -> Result<SafetyStatus> {
         let n = self.model.nq();
         for (arg, v) in [("q", q), ("qd", qd), ("tau_ext", tau_ext)] {
@@ -318,7 +320,7 @@ impl SafetyLayer {
             return Ok(SafetyStatus::stop(non_finite(Quantity::Time, 0, t)));
         }
         for (quantity, v) in [(Quantity::Position, q), (Quantity::Velocity, qd), (Quantity::ExternalTorque, tau_ext)] {
-            if let Some(j) = v.iter().position(|x| !x.is_finite()) {
+            if let Some(j) = v.iter().position(|x| !(x.abs() <= MAX_MAGNITUDE)) {
                 return Ok(SafetyStatus::stop(non_finite(quantity, j, v[j])));
             }
         }

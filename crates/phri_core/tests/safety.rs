@@ -79,6 +79,21 @@ fn each_non_finite_input_is_named() {
 }
 
 #[test]
+fn a_reading_beyond_max_magnitude_is_not_trusted() {
+    // No arm reads 1e12 rad or 1e300 N·m: every later step of the tick would refuse the value, so
+    // the layer reports it as it reports a NaN (found by the control loop's fuzz target).
+    let mut s = layer(SafetyParams::default());
+    let mut q = start();
+    q[2] = 1e12;
+    let v = violation(checked(&mut s, &q, &[0.0; 7], &[0.0; 7]));
+    assert_eq!((v.limit, v.quantity, v.index, v.value), (Limit::NonFinite, Quantity::Position, 2, 1e12));
+    let v = violation(checked(&mut s, &start(), &[0.0; 7], &[0.0, -1e300, 0.0, 0.0, 0.0, 0.0, 0.0]));
+    assert_eq!((v.limit, v.quantity, v.index), (Limit::NonFinite, Quantity::ExternalTorque, 1));
+    let edge = [phri_core::MAX_MAGNITUDE; 7];
+    assert!(checked(&mut s, &start(), &[0.0; 7], &edge).unwrap().violation.is_none(), "the bound itself is a reading");
+}
+
+#[test]
 fn a_joint_beyond_its_position_limit_less_the_margin_is_named_with_its_bound() {
     let mut s = layer(SafetyParams::default());
     let model = jaco2();

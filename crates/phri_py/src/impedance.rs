@@ -62,6 +62,20 @@ impl Joints<'_> {
             Joints::Any(a) => vector(arg, a, n),
         }
     }
+
+    /// The values as given, only their number checked (by the core for a fast-path slice): for
+    /// the safety layer, which must report a non-finite or huge reading as a violation (a stop),
+    /// not refuse the call.
+    pub(crate) fn unchecked(&self, arg: &str, n: usize) -> PyResult<Cow<'_, [f64]>> {
+        match self {
+            Joints::Fast(a) => Ok(match a.as_slice() {
+                Ok(s) => Cow::Borrowed(s),
+                Err(_) => Cow::Owned(a.as_array().to_vec()),
+            }),
+            Joints::Any(a) if a.shape() == [n] => Ok(Cow::Owned(a.as_array().iter().copied().collect())),
+            Joints::Any(a) => Err(error(Kind::Shape, format!("{arg} must have shape ({n},), got {}", shape_str(a.shape())))),
+        }
+    }
 }
 
 /// Why `out` cannot be written (only called once the direct write failed).

@@ -52,3 +52,16 @@ pub fn bounded(arg: &str, value: i128, range: RangeInclusive<usize>, what: &str)
         }
     }
 }
+
+/// `value` as a count (an int in [0, `max`]) for argument `arg` (a constructor's keyword read with
+/// `from_py_with`): an InvalidParameterError naming it when out of range, a TypeError when it is
+/// not an int (a bool, a float), which PyO3 prefixes with "argument '<arg>': ".
+pub fn count(arg: &str, value: &Bound<'_, PyAny>, max: usize) -> PyResult<usize> {
+    let Ok(v) = int(value) else {
+        return Err(PyTypeError::new_err(format!("must be an int, got {}", value.get_type().qualname()?)));
+    };
+    match usize::try_from(v) {
+        Ok(v) if v <= max => Ok(v),
+        _ => Err(error(Kind::InvalidParameter, format!("{arg} must be an integer in [0, {max}], got {}", shown(v)))),
+    }
+}

@@ -9,9 +9,10 @@ use pyo3::prelude::*;
 
 use crate::arrays::{vector, ArrayIn};
 use crate::deform::PyDeformation;
-use crate::errors::{count, error, IntoPy, Kind};
+use crate::errors::{error, IntoPy, Kind};
 use crate::features::PyFeatures;
 use crate::interaction::PyInteractionDetector;
+use crate::ints::count;
 use crate::trajopt::{PyTrajectoryOptimizer, PyTrajoptInfo};
 use crate::update::{PyUpdateInfo, PyWeightUpdate};
 

@@ -7,11 +7,13 @@ use numpy::{PyArray1, PyArrayMethods, PyReadwriteArray1, PyUntypedArrayMethods};
 use phri_core::safety::{
     Limit, SafetyLayer, SafetyLimits, SafetyParams, SafetyStatus, ToolBox, Violation, DEFAULT_SAFETY_PARAMS,
 };
+use phri_core::{PhriError, MAX_MAGNITUDE};
 use pyo3::prelude::*;
 
 use crate::arrays::{vector, ArrayIn};
-use crate::errors::{count, error, IntoPy, Kind};
+use crate::errors::{error, IntoPy, Kind};
 use crate::impedance::Joints;
+use crate::ints::count;
 use crate::robot::PyRobot;
 
 // The signature spells the core's defaults out (so that Python's help shows numbers).
@@ -58,6 +60,9 @@ impl PySafetyViolation {
     fn message(&self) -> String {
         let (v, b, i) = (self.value, self.bound, self.index);
         match self.limit {
+            "non_finite" if v.is_finite() => {
+                format!("{}[{i}] = {v:e} beyond ±{MAX_MAGNITUDE:e}: not a reading to trust", self.quantity)
+            }
             "non_finite" => format!("non-finite {}[{i}] = {v}", self.quantity),
             "joint_position" => {
                 format!("joint {i} position q = {v:.6} rad beyond its limit {b:.6} rad (the URDF's less the margin)")
@@ -72,7 +77,7 @@ impl PySafetyViolation {
 
     fn __repr__(&self) -> String {
         format!(
-            "SafetyViolation(limit={:?}, quantity={:?}, index={}, value={}, bound={})",
+            "SafetyViolation(limit={:?}, quantity={:?}, index={}, value={:?}, bound={:?})",
             self.limit, self.quantity, self.index, self.value, self.bound
         )
     }
@@ -165,7 +170,15 @@ impl PySafetyLayer {
     ) -> PyResult<Self> {
         let model = robot.model.clone();
         let n = model.nq();
-        let frame = model.frame_id(&tool).py_err()?;
+        let frame = model
+            .frame_id(&tool)
+            .map_err(|e| match e {
+                PhriError::UnknownName { kind, name, known, .. } => {
+                    PhriError::UnknownName { arg: "tool".into(), kind, name, known }
+                }
+                e => e,
+            })
+            .py_err()?;
         let tool_box = match &tool_box {
             Some((lower, upper)) => Some(ToolBox { lower: corner("tool_box[0]", lower)?, upper: corner("tool_box[1]", upper)? }),
             None => None,
@@ -198,7 +211,9 @@ impl PySafetyLayer {
     /// Returns None, or the first limit crossed as a SafetyViolation.
     fn check_state(&mut self, t: f64, q: Joints<'_>, qd: Joints<'_>, tau_ext: Joints<'_>) -> PyResult<Option<PySafetyViolation>> {
         let n = self.layer.model().nq();
-        let (q, qd, tau_ext) = (q.values("q", n)?, qd.values("qd", n)?, tau_ext.values("tau_ext", n)?);
+        // Unchecked: a non-finite reading is the core's to report as a violation (the loop then stops
+        // the arm); refusing it with an error would skip the hold.
+        let (q, qd, tau_ext) = (q.unchecked("q", n)?, qd.unchecked("qd", n)?, tau_ext.unchecked("tau_ext", n)?);
         self.status = self.layer.check_state(t, &q, &qd, &tau_ext).py_err()?;
         Ok(report(&self.status))
     }

@@ -80,6 +80,9 @@ LOG_RATE = 100.0
 #: Why the watchdog may stop the arm: the safety layer's limits (:data:`phri.control.SAFETY_LIMITS`),
 #: a lost connection, or the robot's own fault.
 STOP_REASONS = (*SAFETY_LIMITS, "connection_lost", "robot_fault")
+#: Most rows of a run's log (made at the start, about 300 bytes a row for 7 joints: 300 MB; 2.8
+#: hours at the default log rate): a longer run is refused before it starts, not a MemoryError.
+MAX_LOG_ROWS = 1_000_000
 #: A tick on the log's time grid within this fraction of a log period counts as on it (tick times
 #: carry rounding), as the learner's sample grid does.
 GRID_TOLERANCE = 1e-6
@@ -337,6 +340,12 @@ class ControlLoop:
         q_start = np.asarray(q_start, dtype=float)
         if q_start.shape != (n,):
             raise InvalidParameterError(f"q_start must have shape ({n},), got {q_start.shape}")
+        if float(duration) + self.hold_time > (MAX_LOG_ROWS - 3) * self.log_period:
+            raise InvalidParameterError(
+                f"duration + hold_time ({duration:g} s + {self.hold_time:g} s) at log_rate "
+                f"{1.0 / self.log_period:g} Hz would log more than {MAX_LOG_ROWS} rows: run shorter "
+                "motions or lower log_rate"
+            )
         rows = int(math.floor((duration + self.hold_time) / self.log_period + GRID_TOLERANCE)) + 3
         log = _Log(rows, n)
         result = self.result = LoopResult()

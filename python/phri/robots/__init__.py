@@ -9,19 +9,12 @@ simulation takes its frame names from the same description, so each lives in one
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
 
-from phri._validate import Reader, finite
+from phri._validate import Reader, finite, parse_toml
 from phri.exceptions import ConfigError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = ["CarriedObject", "RobotDescription", "SafetySpec", "load", "read_safety"]
 
@@ -137,9 +130,10 @@ def load(name_or_path: str | Path) -> RobotDescription:
         raise ConfigError(f"{path}: robot description not found")
     source = str(path)
     try:
-        data: dict[str, Any] = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
         raise ConfigError(f"{source}: not valid TOML ({e})") from None
+    data = parse_toml(text, source, "a robot description")
     r = Reader(source, data, allowed=DESCRIPTION_KEYS)
     frames = {key: r.optional_string(key) for key in ("feature_frame", "hand_frame", "cup_frame")}
     carried = _carried(r, path.parent)

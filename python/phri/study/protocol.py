@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import sys
 import zlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -25,17 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from phri._validate import finite, is_integer, must_be
+from phri._validate import finite, is_integer, must_be, parse_toml
 from phri.config import STUDY_TASKS, Task, load_task, task_names
 from phri.exceptions import ConfigError, UnknownNameError
 from phri.sim.episode import STRATEGIES, EpisodeConfig
 from phri.sim.participant import ParticipantParams, Population, default_population, load_population
 from phri.study.errors import StudyConfigError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = [
     "MAX_ATTEMPTS",
@@ -290,10 +284,7 @@ class StudyConfig:
             text = path.read_text(encoding="utf-8")
         except OSError as e:
             raise StudyConfigError(f"{path}: cannot read the study file ({e.strerror})") from None
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as e:
-            raise StudyConfigError(f"{path}: not valid TOML ({e})") from None
+        data = parse_toml(text, str(path), "a study file", StudyConfigError)
         return cls.from_dict(data, str(path), path.parent)
 
     def task_digests(self) -> dict[str, str]:

@@ -33,7 +33,6 @@ from __future__ import annotations
 import functools
 import math
 import statistics
-import sys
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -43,17 +42,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from phri._validate import decode_utf8, did_you_mean, finite
-from phri.exceptions import ConfigError, UnknownNameError
+from phri._validate import decode_utf8, did_you_mean, finite, is_integer, must_be, parse_toml
+from phri.exceptions import ConfigError, InvalidParameterError, UnknownNameError
 from phri.sim.participant.parameters import PARAMETERS
 
 if TYPE_CHECKING:
     from phri.sim.participant.params import ParticipantParams
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 __all__ = [
     "DISTRIBUTIONS",
@@ -99,7 +93,11 @@ class Distribution:
         if self.kind == "uniform":
             return v["low"] + (v["high"] - v["low"]) * u
         z = _NORMAL.inv_cdf(u)
-        x = v["median"] * math.exp(v["sigma"] * z) if self.kind == "lognormal" else v["mean"] + v["sd"] * z
+        if self.kind == "lognormal":
+            spread = v["sigma"] * z  # beyond 709 exp overflows (an error, where x * y gives inf)
+            x = v["median"] * math.exp(spread) if spread < 709.0 else math.inf
+        else:
+            x = v["mean"] + v["sd"] * z
         return min(max(x, v.get("min", -math.inf)), v.get("max", math.inf))
 
     @property
@@ -130,7 +128,11 @@ class Population:
 
     @staticmethod
     def quantiles(study_seed: int, participant: int) -> dict[str, float]:
-        """Participant `participant`'s uniform number per parameter (keyed by the parameter's name)."""
+        """Participant `participant`'s uniform number per parameter (keyed by the parameter's name).
+        Both are integers >= 0 (numpy's SeedSequence takes no other; None would draw at random)."""
+        for arg, value in (("study_seed", study_seed), ("participant", participant)):
+            if not is_integer(value) or value < 0:
+                raise must_be(arg, "an integer >= 0", value, error=InvalidParameterError)
         out = {}
         for name in PARAMETERS:
             ss = np.random.SeedSequence(
@@ -265,7 +267,7 @@ def _distribution(source: str, name: str, spec: Any) -> Distribution:
     if not isinstance(spec, Mapping):
         raise ConfigError(f"{where}' must be a table with a distribution, got {spec!r}")
     kind = spec.get("distribution")
-    if kind not in DISTRIBUTIONS:
+    if not isinstance(kind, str) or kind not in DISTRIBUTIONS:
         raise ConfigError(
             f"{where}.distribution' must be one of {', '.join(DISTRIBUTIONS)}, got {kind!r}"
             + (did_you_mean(kind, tuple(DISTRIBUTIONS)) if isinstance(kind, str) else "")
@@ -312,7 +314,11 @@ def _distribution(source: str, name: str, spec: Any) -> Distribution:
         key = {"fixed": "value", "uniform": "low" if bound == "min" else "high"}.get(kind, bound)
         if key not in values:
             key = "median" if kind == "lognormal" else "mean"
-        hint = f" (a normal distribution reaches {x:g}; clip it with min/max)" if kind == "normal" else ""
+        hint = (
+            f" (a {kind} distribution reaches {x:g}; clip it with min/max)"
+            if kind in ("normal", "lognormal")
+            else ""
+        )
         raise ConfigError(
             f"{where}.{key}' must keep {name} {param.expected} [{unit}] ({param.meaning}), "
             f"got {values[key]!r}{hint}"
@@ -355,11 +361,7 @@ def load_population(name_or_path: str | Path) -> Population:
             "save the population file as UTF-8"
         ),
     )
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{source}: not valid TOML ({e})") from None
-    return Population.from_dict(data, source, base_dir)
+    return Population.from_dict(parse_toml(text, source, "a population file"), source, base_dir)
 
 
 @functools.cache

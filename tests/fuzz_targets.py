@@ -663,9 +663,8 @@ shutil.copytree(Path(str(files("phri") / "robots" / "jaco2")), ROBOT_FOLDER)
 
 def _robot_description_text(_: Any, *, text: str) -> Any:
     (ROBOT_FOLDER / "robot.toml").write_text(text, encoding="utf-8", errors="surrogatepass")
-    description = load_description(ROBOT_FOLDER / "robot.toml")
-    robot = phri.Robot.from_urdf_string(description.urdf_text(), description.base, description.tip)
-    return safety_limits(robot, description, phri.load_task("table"))
+    robot = phri.Robot.from_description(ROBOT_FOLDER / "robot.toml")
+    return safety_limits(robot, load_description(ROBOT_FOLDER / "robot.toml"), phri.load_task("table"))
 
 
 TARGETS["robot_description.file"] = Target(

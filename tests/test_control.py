@@ -182,6 +182,23 @@ def test_the_loop_needs_the_laws_gravity_and_valid_settings() -> None:
         loop_over(FakeArm()).run(np.zeros(6), 1.0)
 
 
+@pytest.mark.parametrize(
+    "q_start", [START + 1j, np.ma.masked_array(START, mask=START > 3), [1.0, [2.0]], START.astype(str)]
+)
+def test_a_start_that_is_not_real_numbers_is_refused_not_cast(q_start) -> None:
+    # Found by the fuzz suite: a complex start lost its imaginary part with only a warning.
+    with pytest.raises(TypeError, match="^q_start must be an array of real numbers, got "):
+        loop_over(FakeArm()).run(q_start, 1.0)
+
+
+def test_a_run_whose_log_would_not_fit_is_refused_before_it_starts() -> None:
+    # Found by the fuzz suite: hold_time=1e12 asked numpy for a 7 TiB log.
+    with pytest.raises(InvalidParameterError, match=r"^duration \+ hold_time .* more than 1000000 rows"):
+        loop_over(FakeArm(), hold_time=1e12).run(START, 1.0)
+    with pytest.raises(InvalidParameterError, match=r"^duration \+ hold_time"):
+        loop_over(FakeArm()).run(START, 1.7e308)
+
+
 @pytest.mark.parametrize("value", [-1, 2**32, 10**100])
 def test_a_late_ticks_count_out_of_range_names_the_argument(value: int) -> None:
     # Not PyO3's bare OverflowError ("out of range integral type conversion attempted").

@@ -10,7 +10,15 @@
 
 from phri._phri import SAFETY_LIMITS, SafetyLayer, SafetyViolation
 from phri.control.backend import Backend, RobotState
-from phri.control.loop import HOLD_TIME, LOG_RATE, STOP_REASONS, ControlLoop, LoopResult, StopEvent
+from phri.control.loop import (
+    HOLD_TIME,
+    LOG_RATE,
+    MAX_LOG_ROWS,
+    STOP_REASONS,
+    ControlLoop,
+    LoopResult,
+    StopEvent,
+)
 from phri.control.safety import LATE_AFTER, LATE_TICKS, SafetyLimits, safety_limits
 
 __all__ = [
@@ -18,6 +26,7 @@ __all__ = [
     "LATE_AFTER",
     "LATE_TICKS",
     "LOG_RATE",
+    "MAX_LOG_ROWS",
     "SAFETY_LIMITS",
     "STOP_REASONS",
     "Backend",

@@ -337,7 +337,16 @@ class ControlLoop:
         ):
             raise InvalidParameterError(f"duration must be a finite time > 0 s, got {duration!r}")
         n = self.backend.robot.nq
-        q_start = np.asarray(q_start, dtype=float)
+        try:
+            given = np.asarray(q_start)
+        except ValueError:  # a ragged sequence
+            given = np.asarray(None)
+        if isinstance(q_start, np.ma.MaskedArray) or given.dtype.kind not in "iuf":
+            # Not cast: a complex value would lose its imaginary part, a masked one its mask.
+            raise TypeError(
+                f"q_start must be an array of real numbers, got {type(q_start).__name__} of {given.dtype}"
+            )
+        q_start = given.astype(float)
         if q_start.shape != (n,):
             raise InvalidParameterError(f"q_start must have shape ({n},), got {q_start.shape}")
         if float(duration) + self.hold_time > (MAX_LOG_ROWS - 3) * self.log_period:

@@ -89,7 +89,7 @@ def read_safety(r: Reader) -> SafetySpec:
 def _read(source: str, key: str, path: Path) -> str:
     try:
         return path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
+    except (OSError, UnicodeDecodeError, ValueError) as e:  # ValueError: a NUL in the path
         raise ConfigError(f"{source}: key '{key}': cannot read {path} ({e})") from None
 
 

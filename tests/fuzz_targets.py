@@ -35,7 +35,7 @@ import phri
 from phri.control import ControlLoop, RobotState, SafetyLayer, safety_limits
 from phri.exceptions import NotConvergedError, PhriError, PlanningError
 from phri.robots import load as load_description
-from phri.sim.participant import ParticipantParams, load_population
+from phri.sim.participant import Participant, ParticipantParams, load_population
 
 # -- what arguments are drawn from ----------------------------------------------------------------
 
@@ -790,9 +790,20 @@ TARGETS["ControlLoop"] = Target(  # a run of at most 50 ticks with a reading gon
 
 # The simulated participant (phri.sim.participant): one person's parameters, and population files
 # near the shipped one.
+TABLE_TASK = phri.load_task("table")
+TABLE_PLAN = np.array([TABLE_TASK.start, TABLE_TASK.goal])
+
+
+def _person(params: ParticipantParams) -> Any:
+    """The person with `params` watching the table task for a few of their looks."""
+    person = Participant(params, TABLE_TASK, JACO2, TABLE_PLAN, np.random.default_rng(0))
+    q = TABLE_TASK.start + 0.2
+    return [person.wrench(0.05 * k, q) for k in range(8)]
+
+
 TARGETS["ParticipantParams"] = Target(
     lambda: None,
-    lambda _, *, attempt, **kw: ParticipantParams(**kw).for_attempt(attempt).as_dict(),
+    lambda _, *, attempt, **kw: _person(ParticipantParams(**kw).for_attempt(attempt)),
     {
         "tolerance": scalars(0, 0.1),
         "release": scalars(0, 1),

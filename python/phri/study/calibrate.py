@@ -150,6 +150,7 @@ class CalibrationResult:
 
     @property
     def reached(self) -> bool:
+        """Whether the best population meets every target within the tolerance."""
         return not self.misses
 
     def table(self) -> str:
@@ -166,6 +167,7 @@ class CalibrationResult:
         return "\n".join(lines)
 
     def miss_message(self) -> str:
+        """The targets missed, in words (the error message of a calibration that misses)."""
         parts = [
             f"{r['task']}{'/' + r['strategy'] if r['strategy'] else ''} {r['statistic']}: "
             f"{r['simulated']:.4g} against {r['reference']:.4g} ({(r['ratio'] - 1) * 100:+.0f} %)"

@@ -298,6 +298,9 @@ class StudyConfig:
                 if k not in ("source", "scene")
             }
             d["scene"] = [_scene_object_record(o) for o in task.scene.objects]
+            if isinstance(d.get("safety"), dict) and isinstance(d["safety"].get("limits"), dict):
+                # Where the file is, not what it says (a study reads its folder's copy on resume).
+                d["safety"]["limits"].pop("source", None)
             out[name] = hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
         return out
 

@@ -85,6 +85,7 @@ class Participant:
 
     @property
     def state(self) -> State:
+        """What the person is doing now: watching, pushing, pausing, or given up."""
         return self.persistence.state
 
     @property

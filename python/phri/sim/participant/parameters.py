@@ -23,6 +23,7 @@ class Parameter:
     below: bool = False
 
     def allows(self, v: float) -> bool:
+        """Whether `v` (in the parameter's unit) is finite and within the allowed range."""
         if not math.isfinite(v):
             return False
         low_ok = v > self.low if self.above else v >= self.low
@@ -31,6 +32,7 @@ class Parameter:
 
     @property
     def expected(self) -> str:
+        """The allowed range in words, for messages ("a finite number >= 0")."""
         lo = f"> {self.low:g}" if self.above else f">= {self.low:g}"
         if math.isinf(self.high):
             return f"a finite number {lo}"

@@ -84,4 +84,5 @@ class ParticipantParams:
         )  # fmt: skip
 
     def as_dict(self) -> dict[str, float]:
+        """Every parameter by name, in its SI unit (:data:`PARAMETERS` order)."""
         return asdict(self)

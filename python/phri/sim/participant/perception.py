@@ -98,6 +98,7 @@ class TaskView:
         self.pose = np.eye(4)
 
     def reset(self) -> None:
+        """Compares with the desired behaviour from its first point again (a new attempt)."""
         self.progress = 0
 
     def look(self, q: np.ndarray) -> list[Correction]:

@@ -27,6 +27,9 @@ _SLACK = 1e-9
 
 
 class State(Enum):
+    """What the person is doing: watching the robot, pushing it, pausing to see what it does after
+    a push, or having given up on correcting it for this attempt."""
+
     WATCHING = "watching"
     PUSHING = "pushing"
     PAUSING = "pausing"

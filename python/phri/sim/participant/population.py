@@ -82,6 +82,7 @@ class Distribution:
     values: tuple[tuple[str, float], ...]
 
     def get(self, key: str, default: float | None = None) -> float | None:
+        """The distribution's value `key` (e.g. "median"), or `default` when it has none."""
         return dict(self.values).get(key, default)
 
     def quantile(self, u: float) -> float:
@@ -106,6 +107,7 @@ class Distribution:
         return self.quantile(0.5)
 
     def to_dict(self) -> dict[str, Any]:
+        """The distribution as a population file's [parameters.<name>] table."""
         return {"distribution": self.kind, **dict(self.values)}
 
 
@@ -164,6 +166,7 @@ class Population:
         return Population.from_dict(data, source or self.source)
 
     def to_dict(self) -> dict[str, Any]:
+        """The population as a parsed population file ([about] and [parameters.<name>] tables)."""
         out: dict[str, Any] = {}
         if self.about:
             out["about"] = dict(self.about)

@@ -347,18 +347,25 @@ def test_faults_are_parsed_and_refused_clearly() -> None:
 
 
 def test_the_person_pushes_the_hand_and_the_robot_measures_j_transpose_w() -> None:
-    """Zero torque on the table task: the arm stays while the plan moves on, the participant
-    pushes the hand towards it, the hand moves along the push, and tau_ext is phri's Jᵀ·w."""
+    """The table task: a joint-space spring lifts the cup 6 cm above the start, where the participant
+    sees it too high (they judge the path's shape, not its timing: an arm standing at the start
+    looks right to them), then zero torque: they push the hand down, the hand moves along the push,
+    and tau_ext is phri's Jᵀ·w."""
+    start = load_task("fr3_table").start
+    jacobian = FR3.jacobian(HAND, start)[:3]
+    lifted = start + np.linalg.pinv(jacobian) @ np.array([0.0, 0.0, 0.06])
+    release = 1200  # ticks of the spring (the arm settles); zero torque after
     with SimServer("127.0.15.2", realtime=REALTIME, task="table", seed=3) as server:
         backend = FrankaBackend(server.host, FR3, realtime=False)
         rows = []
         try:
             first = backend.start(np.zeros(7))
-            np.testing.assert_allclose(first.q, load_task("fr3_table").start, atol=1e-4)
-            for _ in range(1500):
+            np.testing.assert_allclose(first.q, start, atol=1e-4)
+            for k in range(3000):
                 state = backend.read()
                 assert state.fault is None
-                backend.write(np.zeros(7))
+                spring = 60.0 * (lifted - state.q) - 8.0 * state.qd
+                backend.write(spring if k < release else np.zeros(7))
                 wrench = -np.asarray(backend.raw.O_F_ext_hat_K)  # the person's, on the robot
                 rows.append((state.t, state.q, state.tau_ext, wrench))
         finally:
@@ -368,13 +375,14 @@ def test_the_person_pushes_the_hand_and_the_robot_measures_j_transpose_w() -> No
     tau = np.array([r[2] for r in rows])
     w = np.array([r[3] for r in rows])
     pushing = np.linalg.norm(w[:, :3], axis=1) > 1.0
-    assert 0 < np.argmax(pushing) and pushing.sum() > 200, "the person never pushed"
-    onset = int(np.argmax(pushing))
+    assert 0 < np.argmax(pushing) and pushing[release:].sum() > 200, "the person never pushed"
+    onset = release + int(np.argmax(pushing[release:]))  # the arm free from here on
     # tau_ext is the push through phri's Jacobian of the hand (MuJoCo computed it), at every tick.
-    for k in np.nonzero(pushing)[0]:
+    touching = np.any(w != 0.0, axis=1)  # a push building up or relaxing too
+    for k in np.nonzero(touching)[0]:
         expected = FR3.jacobian(HAND, q[k]).T @ w[k]
         np.testing.assert_allclose(tau[k], expected, atol=1e-3 + 2e-3 * np.abs(expected).max())
-    assert np.all(tau[~pushing] == 0.0)
+    assert np.all(tau[~touching] == 0.0)
     # The hand moves along the push (the arm is free: zero torque, gravity compensated).
     window = slice(onset, onset + 100)
     hand = np.array([FR3.frame_pose(HAND, qk)[:3, 3] for qk in q[window]])

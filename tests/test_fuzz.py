@@ -4,7 +4,7 @@ the rules are in tests/fuzz_targets.py; each target runs in a child process with
 (address space) and a time limit, so that a crash or a hang fails its test and names the call.
 
 Derandomised and database-free (the same examples on every run). `PHRI_FUZZ_EXAMPLES` sets the
-examples per target (default 200: about 30 s for all targets in `make test` on the shared 2-core machine);
+examples per target (default 200: about 45 s for the 37 targets in `make test` on the shared 2-core machine);
 e.g. ``PHRI_FUZZ_EXAMPLES=2000 pytest tests/test_fuzz.py`` for a long run.
 """
 

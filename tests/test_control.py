@@ -579,17 +579,18 @@ class CountingRng:
 
 
 def test_the_pybullet_backend_measures_the_push_at_the_sample_rate_only(world) -> None:
-    from phri.sim import Participant, ParticipantParams
     from phri.sim.backend import PyBulletBackend
+
+    class SteadyPush:
+        """A person who pushes the hand down with 10 N and twists it with 0.5 N·m, always."""
+
+        def wrench(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return np.array([0.0, 0.0, -10.0]), np.array([0.5, 0.0, 0.0])
 
     task = shortened(load_task("table"), 1.0, 5)
     world.set_scene(task.scene)
     rng = CountingRng(3)
-    desired = phri.TimedTrajectory(np.vstack([task.start, task.goal]), task.duration)
-    person = Participant(
-        ParticipantParams(tolerance=0.0, delay=0.0), desired, task.task_feature, world.model,
-        np.random.default_rng(4), dt=world.params.timestep,
-    )  # fmt: skip
+    person = SteadyPush()
     backend = PyBulletBackend(world, participant=person, sample_rate=10.0, sensor_noise=0.1, rng=rng)  # type: ignore[arg-type]
     assert isinstance(backend, Backend) and not backend.gravity_compensated
     state, held = backend.start(task.start), []

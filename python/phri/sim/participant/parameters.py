@@ -41,8 +41,12 @@ class Parameter:
 #: Every parameter of the model, in the order ParticipantParams lists them.
 PARAMETERS: dict[str, Parameter] = {
     # Perception (phri.sim.participant.perception): when a task feature is visibly wrong.
-    "tolerance": Parameter("m", "how far the cup may be from where the task wants it before they see it"),
-    "tilt_tolerance": Parameter("rad", "how far the cup may tilt beyond the task's wish before they see it"),
+    "tolerance": Parameter(
+        "m", "how far the cup may be from where the task wants it before they see it", above=True
+    ),
+    "tilt_tolerance": Parameter(
+        "rad", "how far the cup may tilt beyond the task's wish before they see it", above=True
+    ),
     "release": Parameter("-", "they let go once the error is below this fraction of the tolerance", high=1.0),
     "delay": Parameter("s", "visuomotor delay: they grab, let go and aim by what they saw this long ago"),
     # The arm (phri.sim.participant.arm): how hard they push.

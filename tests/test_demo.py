@@ -25,10 +25,7 @@ def test_the_demo_writes_its_table_figures_frames_and_logs(tmp_path, capsys, cap
         result = phri.demo.run_demo(out, seed=7)
     assert capsys.readouterr().out == "", "the library prints nothing: it logs"
     assert any(
-        r.name == "phri.demo"
-        and "one simulated participant (tolerance" in r.message
-        and "stiffness" in r.message
-        for r in caplog.records
+        r.name == "phri.demo" and "one simulated participant (tolerance" in r.message for r in caplog.records
     )
     table = result.table().splitlines()
     assert table[0].split() == ["task", "strategy", "effort", "time", "cost", "desired", "weight", "clear",

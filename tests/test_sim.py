@@ -146,10 +146,9 @@ def test_after_a_replan_the_arm_keeps_within_its_velocity_limits(world, planners
                 )
         assert speeds[0.8] <= 1.0, f"{name}: the arm reached {speeds[0.8]:.2f}× its velocity limits"
         # The instant switch jumps its reference (the person, pushing then, may hold the arm back), or
-        # the arm snapped after it past the safety layer's limit, which stopped it (no reference then).
-        if 0.0 in references:
-            jump = references[0.0]
-            assert jump > 1.2, f"{name}: the instant switch no longer jumps ({jump:.2f}×)"
+        # the arm's snap onto it was stopped by the safety layer (measured by the stop).
+        jump = references.get(0.0, speeds[0.0])
+        assert jump > 1.2, f"{name}: the instant switch no longer jumps ({jump:.2f}×)"
 
 
 def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planners, tmp_path) -> None:
@@ -185,8 +184,7 @@ def test_replans_on_the_worker_with_a_one_tick_latency_give_the_inline_episode(w
     """Issue 14: the simulated study replans on the learner's worker thread with a fixed simulated
     latency; at one tick it reproduces replanning within the tick exactly, and a longer latency
     adopts each plan that much later, never by the wall clock."""
-    # 4 s: in 3 s the calibrated participant's push raises no weight (nothing would be compared).
-    short = shortened(phri.load_task("table"), 4.0, 7)
+    short = shortened(phri.load_task("table"), 6.0, 13)  # long enough for this person to teach it
     planner = Planner(short, world)
     person = ParticipantParams(tolerance=0.01, delay=0.05)
 

@@ -98,6 +98,11 @@ struct Blend {
     /// Δq [rad] and Δq̇ [rad/s]: old reference minus new plan at `start`.
     offset: Vec<f64>,
     rate: Vec<f64>,
+    /// The old reference's q [rad] and q̇ [rad/s] at `start`, returned there exactly: plan + offset
+    /// may differ from it in the last bit, and a plan adopted one tick later (a replan worker) must
+    /// give the same ticks as one adopted at once.
+    start_q: Vec<f64>,
+    start_qd: Vec<f64>,
 }
 
 /// Smallest speed limit of a blend ([`TimedTrajectory::switch_to`]) [rad/s]: slower than a degree
@@ -109,7 +114,7 @@ const BLEND_CHECKS: usize = 64;
 
 impl Blend {
     fn new(n: usize) -> Self {
-        Blend { start: 0.0, length: 0.0, offset: vec![0.0; n], rate: vec![0.0; n] }
+        Blend { start: 0.0, length: 0.0, offset: vec![0.0; n], rate: vec![0.0; n], start_q: vec![0.0; n], start_qd: vec![0.0; n] }
     }
 
     /// Adds the offset at time `t` [s] (no-op outside the blend).
@@ -120,6 +125,14 @@ impl Blend {
             return;
         }
         let s = (t - self.start) / d;
+        if s == 0.0 {
+            q.copy_from_slice(&self.start_q);
+            qd.copy_from_slice(&self.start_qd);
+            for j in 0..qdd.len() {
+                qdd[j] += (-6.0 * self.offset[j] - 4.0 * self.rate[j] * d) / (d * d);
+            }
+            return;
+        }
         let (s2, s3) = (s * s, s * s * s);
         let (h00, h10) = (2.0 * s3 - 3.0 * s2 + 1.0, s3 - 2.0 * s2 + s);
         let (d00, d10) = (6.0 * s2 - 6.0 * s, 3.0 * s2 - 4.0 * s + 1.0);
@@ -211,6 +224,8 @@ impl TimedTrajectory {
     /// Sets the blend from the old reference in `sc` into the current plan at `t` (see `switch_to`).
     fn start_blend(&mut self, t: f64, limits: &[f64], sc: &mut Scratch) {
         self.sample_plan(t, &mut sc.q, &mut sc.v, &mut sc.a);
+        self.blend.start_q.copy_from_slice(&sc.q_old);
+        self.blend.start_qd.copy_from_slice(&sc.v_old);
         let mut needed: f64 = 0.0;
         let mut largest: f64 = 0.0;
         for j in 0..self.n {

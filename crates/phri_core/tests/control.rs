@@ -210,6 +210,11 @@ proptest! {
         let (mut qa, mut va, mut qb, mut vb, mut acc) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         old.sample(t0, &mut qa, &mut va, &mut acc);
         traj.sample(t0, &mut qb, &mut vb, &mut acc);
+        if length > 0.0 {
+            // Exactly the old reference at t0, to the last bit: a plan adopted a tick later (on a
+            // replan worker) must give the same ticks as one adopted at once.
+            prop_assert!(qa == qb && va == vb, "jump at t0: {:?} {:?} against {:?} {:?}", qb, vb, qa, va);
+        }
         for j in 0..n {
             prop_assert!((qa[j] - qb[j]).abs() < 1e-12 && (va[j] - vb[j]).abs() < 1e-9, "jump at t0, joint {}", j);
         }

@@ -133,7 +133,7 @@ def _shipped_text(name: str) -> str:
             "duration = 15.0",
             "duraton = 15.0",
             "unknown key 'duraton' in the top-level table; allowed keys: name, title, angles, start, goal, "
-            "duration, waypoints, task_feature, feature_frame, features, scene, robot; "
+            "duration, waypoints, task_feature, feature_frame, features, scene, robot, safety; "
             "did you mean 'duration'?",
         ),
         (

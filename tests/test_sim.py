@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import phri
-from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
+from phri.exceptions import InvalidParameterError, PlanningError, SafetyStopError, SimulationError
 from phri.sim import (
     LATER_THRESHOLDS,
     ORIGINAL_THRESHOLDS,
@@ -113,7 +113,14 @@ def test_after_a_replan_the_arm_keeps_within_its_velocity_limits(world, planners
         for speed in (0.8, 0.0):
             log = tmp_path / f"{name}-{speed}.npz"
             config = EpisodeConfig(strategy="learning", transition_speed=speed)
-            r = run_episode(task, world, person, config, seed=3, planner=planners[name], log_path=log)
+            try:
+                r = run_episode(task, world, person, config, seed=3, planner=planners[name], log_path=log)
+            except SafetyStopError as e:
+                # The snap may run the arm past the safety layer's velocity limit (twice the rated
+                # speed), which then stops it: the snap, measured by the stop.
+                assert speed == 0.0 and e.event.reason == "joint_velocity", (name, speed, e)
+                speeds[speed] = abs(e.event.value) / limits[e.event.index]
+                continue
             assert r.final_weights[task.task_index] > 0, name
             with np.load(log) as data:
                 t, q_ref, free = data["t"], data["q_ref"], ~np.any(data["push"] != 0, axis=1)

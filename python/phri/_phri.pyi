@@ -17,6 +17,9 @@ __all__ = [
     "LearnerHistory",
     "PlanLevels",
     "Robot",
+    "SAFETY_LIMITS",
+    "SafetyLayer",
+    "SafetyViolation",
     "Scene",
     "SceneObject",
     "TimedTrajectory",
@@ -335,6 +338,84 @@ class ImpedanceController:
     def inertia(self) -> _F64 | None: ...
     @property
     def gravity_compensation(self) -> bool: ...
+
+#: The limits a SafetyViolation can name (defined once, in the core's `safety::Limit::NAMES`).
+_SafetyLimit = Literal["non_finite", "joint_position", "joint_velocity", "tool_box", "late_ticks", "clock"]
+SAFETY_LIMITS: tuple[_SafetyLimit, ...]
+
+@final
+class SafetyViolation:
+    """A limit the safety layer found crossed: which, the value and the bound, in the value's unit."""
+
+    @property
+    def limit(self) -> _SafetyLimit: ...
+    @property
+    def quantity(self) -> Literal["t", "q", "qd", "tau_ext", "tau", "tool_position", "tick_gap"]: ...
+    @property
+    def index(self) -> int: ...
+    @property
+    def value(self) -> float: ...
+    @property
+    def bound(self) -> float: ...
+    @property
+    def message(self) -> str: ...
+    def __eq__(self, value: object, /) -> bool: ...
+    __hash__: ClassVar[None]  # type: ignore[assignment]
+
+@final
+class SafetyLayer:
+    """The control loop's per-tick safety checks (joint position, velocity, torque and torque-rate
+    limits, the tool's box, late ticks, non-finite values); allocation-free."""
+
+    def __new__(
+        cls,
+        robot: Robot,
+        *,
+        tool: str,
+        position_lower: _Array,
+        position_upper: _Array,
+        velocity: _Array,
+        torque: _Array,
+        torque_rate: _Array,
+        tool_box: tuple[_Array, _Array] | None = None,
+        period: float = 0.001,
+        late_after: float = 1.5,
+        late_ticks: int = 3,
+        gravity_compensated: bool = False,
+    ) -> SafetyLayer: ...
+    def reset(self, previous_command: _Array | None = None) -> None: ...
+    def check_state(self, t: float, q: _Array, qd: _Array, tau_ext: _Array) -> SafetyViolation | None: ...
+    def limit_torque(self, q: _Array, tau: _F64, command: _F64) -> SafetyViolation | None: ...
+    @property
+    def torque_saturated(self) -> int: ...
+    @property
+    def rate_saturated(self) -> int: ...
+    @property
+    def torque_clips(self) -> npt.NDArray[np.uint64]: ...
+    @property
+    def rate_clips(self) -> npt.NDArray[np.uint64]: ...
+    @property
+    def position_lower(self) -> _F64: ...
+    @property
+    def position_upper(self) -> _F64: ...
+    @property
+    def velocity(self) -> _F64: ...
+    @property
+    def torque(self) -> _F64: ...
+    @property
+    def torque_rate(self) -> _F64: ...
+    @property
+    def tool_box(self) -> tuple[_F64, _F64] | None: ...
+    @property
+    def tool(self) -> str: ...
+    @property
+    def period(self) -> float: ...
+    @property
+    def late_after(self) -> float: ...
+    @property
+    def late_ticks(self) -> int: ...
+    @property
+    def gravity_compensated(self) -> bool: ...
 
 @final
 class Deformation:

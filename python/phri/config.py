@@ -2,10 +2,11 @@
 
 A task names its start and goal poses, its duration, per feature the initial weight, the true
 (demonstrated) weight, the learning step, the bounds and the feature's own parameters (a keep-out
-feature names the scene object it keeps away from), and its scene: one ``[scene.<name>]`` table per
-object, in the robot's base frame. The study's four tasks ship with phri (``phri.load_task("table")``);
-a user passes their own file the same way (``load_task("my.toml")``). Errors name the file, the key
-and the expected value.
+feature names the scene object it keeps away from), its scene: one ``[scene.<name>]`` table per
+object, in the robot's base frame, and the limits of the control loop's safety layer for the task
+(``[safety]``: the box the tool point must stay in, and tighter joint limits than the robot's).
+The study's four tasks ship with phri (``phri.load_task("table")``); a user passes their own file
+the same way (``load_task("my.toml")``). Errors name the file, the key and the expected value.
 """
 
 from __future__ import annotations
@@ -25,13 +26,14 @@ import numpy as np
 from phri._phri import FEATURE_NAMES, FEATURE_PARAMETERS, Features, Robot, Scene, SceneObject
 from phri._validate import Reader, decode_utf8, did_you_mean, is_integer
 from phri.exceptions import ConfigError, PhriError, UnknownNameError
+from phri.robots import SAFETY_KEYS, SafetySpec, read_safety
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["FeatureSpec", "Task", "load_task", "task_names"]
+__all__ = ["FeatureSpec", "Task", "TaskSafety", "load_task", "task_names"]
 
 STUDY_TASKS = ("human", "coffee", "table", "laptop")
 #: A task's name names its log and figure files: at most this many characters, each a letter, a
@@ -40,8 +42,10 @@ MAX_NAME_LENGTH = 64
 NAME_PUNCTUATION = ("_", "-", ".")
 TASK_KEYS = (
     "name", "title", "angles", "start", "goal", "duration", "waypoints", "task_feature", "feature_frame",
-    "features", "scene", "robot",
+    "features", "scene", "robot", "safety",
 )  # fmt: skip
+#: Keys of a task's [safety] table: the tool's box and overrides of the robot's joint limits.
+TASK_SAFETY_KEYS = ("tool_box", *SAFETY_KEYS)
 #: Keys of a [features.<name>] table besides the feature's own parameters (FEATURE_PARAMETERS).
 WEIGHT_KEYS = ("initial", "true", "step", "lower", "upper", "learned")
 SCENE_OBJECT_KEYS = ("shape", "size", "radius", "length", "position", "rpy", "margin", "kind")
@@ -70,6 +74,17 @@ class FeatureSpec:
 
 
 @dataclass(frozen=True)
+class TaskSafety:
+    """A task's ``[safety]`` table: the box the tool point (the robot's hand frame) must stay in
+    while the arm runs, ``tool_box = { lower = [x, y, z], upper = [x, y, z] }`` [m, base frame] (None:
+    no box), and joint limits tighter than the robot description's (`limits`, the keys of
+    :class:`phri.robots.SafetySpec`; a task may only tighten them)."""
+
+    tool_box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    limits: SafetySpec = field(default_factory=SafetySpec)
+
+
+@dataclass(frozen=True)
 class Task:
     """A validated task; angles are in radians whatever the file used."""
 
@@ -87,6 +102,8 @@ class Task:
     feature_frame: str | None = None
     #: The shipped robot the task is posed for ("jaco2" when the file names none).
     robot: str = "jaco2"
+    #: The task's [safety] table (the tool's box, tighter joint limits).
+    safety: TaskSafety = field(default_factory=TaskSafety)
 
     @property
     def feature_names(self) -> list[str]:
@@ -213,6 +230,27 @@ def _scene(r: Reader) -> Scene:
     return Scene(objects)
 
 
+def _safety(r: Reader) -> TaskSafety:
+    """The [safety] table: the tool's box (each corner three finite numbers [m], lower < upper on
+    every axis) and the joint-limit overrides."""
+    s = r.table_of("safety", TASK_SAFETY_KEYS)
+    tool_box = None
+    if "tool_box" in s.table:
+        expected = "a table { lower = [x, y, z], upper = [x, y, z] } [m] with lower < upper"
+        raw = s.get("tool_box")
+        if not isinstance(raw, dict):
+            raise s.fail("tool_box", expected, raw)
+        box = Reader(s.source, raw, "safety.tool_box.", ("lower", "upper"))
+        lower, upper = box.vector("lower", 3), box.vector("upper", 3)
+        if not (lower < upper).all():
+            raise s.fail("tool_box", expected, raw)
+        tool_box = (
+            (float(lower[0]), float(lower[1]), float(lower[2])),
+            (float(upper[0]), float(upper[1]), float(upper[2])),
+        )
+    return TaskSafety(tool_box, read_safety(s))
+
+
 def _feature(r: Reader, name: str, table: Any, scene: Scene) -> FeatureSpec:
     """One [features.<name>] table: the weights and the feature's own parameters."""
     if name not in FEATURE_NAMES:
@@ -293,6 +331,7 @@ def _parse(data: dict[str, Any], source: str) -> Task:
         scene=scene,
         source=source,
         feature_frame=feature_frame,
+        safety=_safety(r),
     )
     try:  # the core's remaining checks (e.g. at most MAX_SAMPLES samples), named by the file
         task.feature_set(robot)

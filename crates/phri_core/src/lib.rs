@@ -21,6 +21,7 @@ pub mod kinematics;
 pub mod learner;
 pub mod model;
 pub mod reference;
+pub mod safety;
 pub mod scene;
 pub mod trajopt;
 pub mod update;

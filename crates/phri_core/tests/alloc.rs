@@ -13,6 +13,7 @@ use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
 use phri_core::reference::{Interpolation, TimedTrajectory};
+use phri_core::safety::{SafetyLayer, SafetyLimits, SafetyParams, ToolBox};
 use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
 use phri_core::update::UpdateRule;
 use phri_core::wall::{VirtualWall, WallParams};
@@ -90,6 +91,22 @@ fn a_control_tick_allocates_nothing() {
     let mut plan2 = plan.clone();
     let shifted: Vec<f64> = waypoints.iter().map(|v| v + 0.1).collect();
     let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
+    // The safety layer with every check on: a tool box, the rate limit, and (for an arm that
+    // compensates gravity) g(q) subtracted from the command.
+    let tool = carrying.frame_id("j2s7s300_end_effector").unwrap();
+    let limits = SafetyLimits {
+        position_lower: carrying.lower_limits(),
+        position_upper: carrying.upper_limits(),
+        velocity: carrying.velocity_limits(),
+        torque: carrying.effort_limits(),
+        torque_rate: vec![1000.0; 7],
+        tool_box: Some(ToolBox { lower: [-2.0; 3], upper: [2.0; 3] }),
+    };
+    let mut safety =
+        SafetyLayer::new(carrying.clone(), tool, limits, SafetyParams { gravity_compensated: true, ..SafetyParams::default() })
+            .unwrap();
+    safety.reset(Some(&[0.0; 7])).unwrap();
+    let mut command = [0.0; 7];
     let (mut q_ref, mut qd_ref, mut qdd_ref, mut tau, mut u_h) = ([0.0; 7], [0.0; 7], [0.0; 7], [0.0; 7], [0.0; 7]);
     let q = [3.0; 7];
     let qd = [0.01; 7];
@@ -108,6 +125,9 @@ fn a_control_tick_allocates_nothing() {
         controller.torque_implicit(&q, &qd, &q_ref, &qd_ref, 1e-3, &mut tau).unwrap();
         let status = walled.torque_implicit(&q, &qd, &q_ref, &qd_ref, 1e-3, &mut tau).unwrap();
         assert!(status.wall.force > 0.0);
+        // The safety layer's two checks, as the loop calls them.
+        assert!(safety.check_state(t, &q, &qd, &u_h).unwrap().is_ok());
+        assert!(safety.limit_torque(&q, &mut tau, &mut command).unwrap().is_ok());
         if k % 100 == 0 {
             plan2.set_waypoints(&waypoints).unwrap();
         }

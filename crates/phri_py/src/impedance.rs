@@ -48,7 +48,7 @@ impl<'a, 'py> FromPyObject<'a, 'py> for Joints<'py> {
 
 impl Joints<'_> {
     /// The values; a fast-path slice is checked (length, finiteness) by the core, which names `arg`.
-    fn values(&self, arg: &str, n: usize) -> PyResult<Cow<'_, [f64]>> {
+    pub(crate) fn values(&self, arg: &str, n: usize) -> PyResult<Cow<'_, [f64]>> {
         match self {
             Joints::Fast(a) => Ok(match a.as_slice() {
                 Ok(s) => Cow::Borrowed(s),

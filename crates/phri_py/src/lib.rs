@@ -12,6 +12,7 @@ mod interaction;
 mod learner;
 mod reference;
 mod robot;
+mod safety;
 mod scene;
 mod trajopt;
 mod update;
@@ -35,6 +36,9 @@ fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<trajopt::PyTrajectoryOptimizer>()?;
     m.add_class::<trajopt::PyTrajoptInfo>()?;
     m.add_class::<trajopt::PyPlanLevels>()?;
+    m.add_class::<safety::PySafetyLayer>()?;
+    m.add_class::<safety::PySafetyViolation>()?;
+    m.add("SAFETY_LIMITS", pyo3::types::PyTuple::new(m.py(), safety::limit_names())?)?;
     m.add_class::<learner::PyLearner>()?;
     m.add_class::<learner::PyLearnerHistory>()?;
     m.add("UPDATE_RULES", pyo3::types::PyTuple::new(m.py(), phri_core::update::UpdateRule::NAMES)?)?;

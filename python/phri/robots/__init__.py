@@ -1,6 +1,7 @@
 """Robot descriptions: per robot a URDF and, beside it, a ``robot.toml`` naming the modelled chain
-(base and tip links), the frames phri uses (the features' point, the hand, the cup) and what the
-robot carries (one ``[carried.<name>]`` table per object: its URDF and the frame it is held at).
+(base and tip links), the frames phri uses (the features' point, the hand, the cup), what the
+robot carries (one ``[carried.<name>]`` table per object: its URDF and the frame it is held at) and
+the limits of the control loop's safety layer (``[safety]``, see :class:`SafetySpec`).
 
 ``Robot.jaco2()`` and ``Robot.from_description(path)`` read them through :func:`load`; the
 simulation takes its frame names from the same description, so each lives in one file.
@@ -14,7 +15,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from phri._validate import Reader
+from phri._validate import Reader, finite
 from phri.exceptions import ConfigError
 
 if sys.version_info >= (3, 11):
@@ -22,11 +23,13 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["CarriedObject", "RobotDescription", "load"]
+__all__ = ["CarriedObject", "RobotDescription", "SafetySpec", "load", "read_safety"]
 
 DESCRIPTION_KEYS = (
-    "urdf", "base", "tip", "feature_frame", "hand_frame", "cup_frame", "carried", "interaction",
+    "urdf", "base", "tip", "feature_frame", "hand_frame", "cup_frame", "carried", "interaction", "safety",
 )  # fmt: skip
+#: The keys of a [safety] table's joint limits (a robot description's, or a task's overrides).
+SAFETY_KEYS = ("position_margin", "velocity_limits", "torque_limits", "torque_rate_limit")
 INTERACTION_KEYS = ("thresholds",)
 CARRIED_KEYS = ("urdf", "frame")
 #: The carried object whose frame is the description's `cup_frame`.
@@ -47,6 +50,47 @@ class CarriedObject:
     def urdf_text(self) -> str:
         """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
         return _read(self.source, f"carried.{self.name}.urdf", self.urdf)
+
+
+#: A per-joint limit as a [safety] table gives it: one number for every joint, or one per joint.
+PerJoint = float | tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class SafetySpec:
+    """The joint limits of a ``[safety]`` table (the robot description's, or a task's overrides of
+    them); None where the table says nothing. A value is one number for every joint or a list with
+    one per joint (checked against the robot's joint count when the loop's limits are made,
+    :func:`phri.control.safety_limits`).
+
+    The loop stops the arm when a joint comes within `position_margin` [rad] of its URDF limit or
+    moves faster than `velocity_limits` [rad/s] (default: the URDF's), and clips the torque to
+    `torque_limits` [N·m] (default: the URDF's efforts) and the command's rate of change to
+    `torque_rate_limit` [N·m/s] (the URDF has none: a description must give it to run the loop)."""
+
+    source: str = "<memory>"
+    position_margin: PerJoint | None = None
+    velocity_limits: PerJoint | None = None
+    torque_limits: PerJoint | None = None
+    torque_rate_limit: PerJoint | None = None
+
+
+def read_safety(r: Reader) -> SafetySpec:
+    """The joint limits (SAFETY_KEYS) of the [safety] table `r` reads, whose keys its maker
+    checked: each a finite number, or a list of them, > 0 (the margin >= 0); errors name the file
+    and key."""
+    values: dict[str, PerJoint] = {}
+    for key in SAFETY_KEYS:
+        if key not in r.table:
+            continue
+        raw = r.get(key)
+        margin = key == "position_margin"
+        expected = f"a number {'>= 0' if margin else '> 0'} or a list of them, one per joint"
+        items = raw if isinstance(raw, list) else [raw]
+        if not items or not all(finite(x) and (x >= 0 if margin else x > 0) for x in items):
+            raise r.fail(key, expected, raw)
+        values[key] = tuple(float(x) for x in items) if isinstance(raw, list) else float(raw)
+    return SafetySpec(r.source, **values)
 
 
 def _read(source: str, key: str, path: Path) -> str:
@@ -74,6 +118,8 @@ class RobotDescription:
     #: The interaction detector's per-joint thresholds [N·m] ([interaction] thresholds; None if
     #: the description gives none).
     thresholds: tuple[float, ...] | None = None
+    #: The safety layer's joint limits ([safety]; empty if the description has no such table).
+    safety: SafetySpec = SafetySpec()
 
     def urdf_text(self) -> str:
         """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
@@ -113,9 +159,10 @@ def load(name_or_path: str | Path) -> RobotDescription:
         if not (v > 0).all():
             raise interaction.fail("thresholds", "a list of positive numbers [N·m], one per joint", raw)
         thresholds = tuple(float(x) for x in v)
+    safety = read_safety(r.table_of("safety", SAFETY_KEYS))
     return RobotDescription(
         source, path.parent / r.string("urdf"), r.string("base"), r.string("tip"), **frames,
-        carried=carried, thresholds=thresholds,
+        carried=carried, thresholds=thresholds, safety=safety,
     )  # fmt: skip
 
 

@@ -16,13 +16,13 @@ from typing import Any
 
 import numpy as np
 
+from phri import robots
 from phri._phri import (
     UPDATE_RULES,
     Deformation,
     ImpedanceController,
     InteractionDetector,
     Learner,
-    Robot,
     TimedTrajectory,
     TrajectoryOptimizer,
     TrajoptInfo,
@@ -31,7 +31,9 @@ from phri._phri import (
 from phri._validate import must_be
 from phri.atomic import write_atomic
 from phri.config import Task
+from phri.control import ControlLoop, LoopResult, RobotState, SafetyLimits, StopEvent, safety_limits
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
+from phri.sim.backend import PyBulletBackend, steps_per_period
 from phri.sim.participant import Participant, ParticipantParams
 from phri.sim.world import HAND, World, WorldParams
 
@@ -61,8 +63,6 @@ ORIGINAL_THRESHOLDS = (8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0)
 #: The thresholds of the original's later versions, joints 1..7 [N·m] (used there together with a
 #: subtracted per-joint bias: EpisodeConfig.detector_bias).
 LATER_THRESHOLDS = (4.0, 5.0, 3.0, 4.0, 1.5, 1.5, 1.5)
-#: A rate's period may differ from a whole number of simulator steps by this fraction [-].
-RATE_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -137,22 +137,6 @@ def _per_joint(name: str, value: Sequence[float], positive: bool) -> tuple[float
     return v
 
 
-def steps_per_period(name: str, rate: float, dt: float) -> int:
-    """The whole number of simulator steps of `dt` [s] in one period of `rate` [Hz], else an
-    InvalidParameterError naming `name` and the nearby rates that are whole numbers of steps."""
-    steps = 1.0 / (rate * dt)
-    whole = round(steps)
-    if whole >= 1 and abs(steps - whole) <= RATE_TOLERANCE * steps:
-        return int(whole)
-    nearby = sorted({max(1, math.floor(steps)), max(1, math.ceil(steps))})
-    listed = ", ".join(f"{1.0 / (n * dt):g} Hz" for n in nearby)
-    raise InvalidParameterError(
-        f"{name} = {rate:g} Hz is not a whole number of simulator steps of {dt:g} s "
-        f"(its period is {steps:.6g} steps, the simulator runs at {1.0 / dt:g} Hz); "
-        f"nearby valid rates: {listed}"
-    )
-
-
 @dataclass
 class EpisodeResult:
     """Metrics of one episode as the study scored them, and where its log is."""
@@ -189,6 +173,8 @@ class EpisodeResult:
     desired_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     #: The episode's log in memory: the arrays a .npz log holds, under the same keys.
     log_arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    #: The safety stop that ended the episode early, or None (also in the log: the ``stop_*`` keys).
+    stop: StopEvent | None = None
 
     def row(self) -> dict[str, object]:
         """A flat record for tables."""
@@ -271,12 +257,13 @@ def write_log(path: Path, arrays: Mapping[str, np.ndarray]) -> Path:
 
 @dataclass
 class _Parts:
-    """What one episode runs: the learner (the robot's side), the controller, the person and the
-    sensor, and the simulator steps between two torque samples and two log rows."""
+    """What one episode runs: the learner (the robot's side), the controller and its safety limits,
+    the person and the sensor, and the simulator steps between two torque samples and two log rows."""
 
     planner: Planner
     learner: Learner
     controller: ImpedanceController
+    limits: SafetyLimits
     person: Participant
     sensor_rng: np.random.Generator
     #: The sensor's constant offset, per joint [N·m].
@@ -326,7 +313,9 @@ def _set_up(
     bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
     # The virtual wall keeps every body clear of the furniture at run time, however the person pushes.
     controller = ImpedanceController(model, scene=task.scene)
-    return _Parts(planner, learner, controller, person, sensor_rng, bias, sample_every, log_every)
+    # The safety layer's limits: the robot's [safety] table, tightened by the task's, its tool box.
+    limits = safety_limits(model, robots.load(task.robot), task)
+    return _Parts(planner, learner, controller, limits, person, sensor_rng, bias, sample_every, log_every)
 
 
 @dataclass
@@ -343,7 +332,10 @@ class _Trace:
     wall_ticks: int = 0
     wall_peak_force: float = 0.0
     frames: list[Path] = field(default_factory=list)
-    #: What stopped the loop early (None: it ran to the end of the task).
+    #: The control loop's result (its stop, the safety layer's clip counts).
+    loop: LoopResult = field(default_factory=LoopResult)
+    #: What stopped the loop early (None: it ran to the end of the task): a safety stop
+    #: (SafetyStopError) or any other error, kept with the log so far.
     error: BaseException | None = None
 
 
@@ -355,79 +347,54 @@ def _simulate(
     frame_times: Sequence[float],
     frame_prefix: Path | None,
 ) -> _Trace:
-    """The 1 kHz loop: the person pushes, the sensor samples, the learner updates its reference and
-    the impedance controller tracks it. An error inside stops the loop and is kept in the trace."""
+    """The episode on the control loop (phri.control) over the PyBullet backend: the person pushes,
+    the sensor samples, the learner updates its reference, the impedance controller tracks it and
+    the safety layer watches. A safety stop or an error ends the episode and is kept in the trace,
+    with the log so far."""
     dt, model = world.params.timestep, world.model
-    steps = int(round(task.duration / dt)) + 1
-    rows = (steps + parts.log_every - 1) // parts.log_every
-    series: dict[str, np.ndarray] = {
-        k: np.zeros((rows, model.nq)) for k in ("q", "qd", "q_ref", "tau", "u_h")
-    }
-    #: The person's wrench at the hand (force [N], torque [N·m]); zero while nobody touches it.
-    series["push"] = np.zeros((rows, 6))
-    #: The virtual wall's largest total force since the previous row [N] (0: it did not act).
-    series["wall_force"] = np.zeros(rows)
-    trace = _Trace(np.zeros(rows), series)
-    wall_force = 0.0
-    learner, person = parts.learner, parts.person
     world.set_scene(task.scene)
-    world.reset(task.start)
-    measured = np.zeros(model.nq)
-    tau = np.zeros(model.nq)
-    reference = (np.zeros(model.nq), np.zeros(model.nq), np.zeros(model.nq))  # written every tick
+    backend = PyBulletBackend(
+        world, participant=parts.person, sample_rate=config.sample_rate,
+        sensor_noise=config.sensor_noise, sensor_bias=parts.bias, rng=parts.sensor_rng,
+    )  # fmt: skip
     frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
+    tracking = {"error": 0.0}
+    frames: list[Path] = []
+
+    def on_tick(k: int, state: RobotState, row: int) -> None:
+        if row >= 0:
+            push = backend.push
+            if push is not None:
+                push_rows[row] = np.concatenate(push)
+            else:  # the hand's distance from its reference while nobody touches it
+                gap = model.frame_pose(HAND, state.q)[:3, 3] - model.frame_pose(HAND, loop.q_ref)[:3, 3]
+                tracking["error"] = max(tracking["error"], float(np.linalg.norm(gap)))
+        if frame_prefix is not None and k in frame_ticks:
+            frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
+
+    loop = ControlLoop(
+        backend, parts.learner, parts.controller, parts.limits, log_rate=config.log_rate, on_tick=on_tick
+    )
+    #: The person's wrench at the hand (force [N], torque [N·m]) at each log row; zero while nobody
+    #: touches it. As many rows as the loop's log can hold (the task, and a stop's hold).
+    push_rows = np.zeros((int((task.duration + loop.hold_time) / loop.log_period) + 4, 6))
+    error: BaseException | None = None
     try:
-        for k in range(steps):
-            t = k * dt
-            q, qd = world.state()
-            push = person.wrench(t, q)
-            if k % parts.sample_every == 0:
-                measured = (
-                    parts.bias + parts.sensor_rng.normal(0.0, config.sensor_noise, model.nq)
-                    if config.sensor_noise
-                    else parts.bias.copy()
-                )
-                if push is not None:
-                    measured += model.jacobian(HAND, q).T @ np.concatenate(push)
-                learner.observe(t, measured)
-            q_ref, qd_ref, _ = learner.reference(t, out=reference)
-            parts.controller.torque_implicit(q, qd, q_ref, qd_ref, dt, out=tau)
-            force = parts.controller.wall_force
-            if force > 0.0:
-                trace.wall_ticks += 1
-                trace.wall_peak_force = max(trace.wall_peak_force, force)
-                wall_force = max(wall_force, force)
-            if k % parts.log_every == 0:
-                _log_row(trace, model, t, push, q=q, qd=qd, q_ref=q_ref, tau=tau, u_h=measured)
-                trace.series["wall_force"][trace.rows - 1] = wall_force
-                wall_force = 0.0
-            if k in frame_ticks and frame_prefix is not None:
-                trace.frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
-            if push is None:
-                world.step(tau)
-            else:
-                world.step(tau, push[0], push[1])
+        result = loop.run(task.start, task.duration, check=False)
+        error = result.error
     except BaseException as e:  # noqa: BLE001 - kept with the log so far; the caller re-raises it
-        trace.error = e
-    return trace
-
-
-def _log_row(
-    trace: _Trace, model: Robot, t: float, push: tuple[np.ndarray, np.ndarray] | None, **joints: np.ndarray
-) -> None:
-    """Appends one row at the log rate, and tracks the hand's distance from its reference while
-    nobody touches it."""
-    row = trace.rows
-    trace.t[row] = t
-    for key, v in joints.items():
-        trace.series[key][row] = v
-    if push is not None:
-        trace.series["push"][row] = np.concatenate(push)
-    trace.rows += 1
-    if push is None:
-        q, q_ref = joints["q"], joints["q_ref"]
-        gap = model.frame_pose(HAND, q)[:3, 3] - model.frame_pose(HAND, q_ref)[:3, 3]
-        trace.tracking_error = max(trace.tracking_error, float(np.linalg.norm(gap)))
+        error, result = e, loop.result
+    log = result.log
+    n = len(log["t"])
+    series = {key: log[key] for key in ("q", "qd", "q_ref", "tau")}
+    series["u_h"] = log["tau_ext"]
+    series["push"] = push_rows[:n]
+    #: The virtual wall's largest total force since the previous row [N] (0: it did not act).
+    series["wall_force"] = log["wall_force"]
+    return _Trace(
+        log["t"], series, rows=n, tracking_error=tracking["error"], wall_ticks=result.wall_ticks,
+        wall_peak_force=result.wall_peak_force, frames=frames, loop=result, error=error,
+    )  # fmt: skip
 
 
 def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndarray]:
@@ -467,6 +434,7 @@ def _score(
     phi = planner.features.phi(executed)
     frame = planner.features.frame
     rows = trace.rows
+    stop = trace.loop.stop
     # Each collision body's smallest distance to each scene object at every log row [m].
     distances = model.scene_distances(trace.series["q"][:rows], task.scene)
     return EpisodeResult(
@@ -492,7 +460,12 @@ def _score(
             "desired": planner.desired, "feature_names": np.array(task.feature_names),
             "distances": distances, "body_names": np.array(model.collision_bodies),
             "object_names": np.array(task.scene.names),
+            # The safety layer: ticks whose torque (or command rate) it clipped, per joint, and the
+            # stop that ended the episode (no row without one).
+            "torque_clips": trace.loop.torque_clips, "rate_clips": trace.loop.rate_clips,
+            **(StopEvent.empty_arrays(model.nq) if stop is None else stop.arrays()),
         },
+        stop=stop,
     )  # fmt: skip
 
 
@@ -509,7 +482,8 @@ def simulate_episode(
 ) -> tuple[EpisodeResult, BaseException | None]:
     """Simulates one attempt at `task` as :func:`run_episode` does, writing no log: returns the result
     (its `log_arrays` hold the log, in memory) and the error that stopped the simulation early (None
-    if it ran to the end; the result then covers the time simulated). Set-up errors are raised."""
+    if it ran to the end; the result then covers the time simulated, and for a safety stop, a
+    :class:`~phri.exceptions.SafetyStopError`, the hold after it). Set-up errors are raised."""
     config = config or EpisodeConfig()
     for i, ft in enumerate(frame_times):
         if isinstance(ft, bool) or not isinstance(ft, int | float) or not 0 <= ft <= task.duration:
@@ -525,8 +499,9 @@ def simulate_episode(
     return result, trace.error
 
 
-def episode_failure(task: str, strategy: str, error: SimulationError, log: object) -> SimulationError:
-    """The error of an episode the simulator failed: names the task, the strategy and the log so far."""
+def episode_failure(task: str, strategy: str, error: Exception, log: object) -> SimulationError:
+    """The error of an episode the simulator failed (or the safety layer stopped): names the task,
+    the strategy and the log so far."""
     return SimulationError(f"{task}/{strategy}: {error} (log so far: {log})")
 
 
@@ -544,8 +519,11 @@ def run_episode(
 ) -> EpisodeResult:
     """Simulates one attempt at `task` for `task.duration` seconds at the world's time step.
 
-    `log_path` (.npz) receives the compressed time series (also when the simulation fails: the log so
-    far, then the error is raised); `frame_times` [s] are rendered to
+    The episode runs on :class:`phri.control.ControlLoop` over the PyBullet JACO2
+    (:class:`phri.sim.backend.PyBulletBackend`), whose safety layer takes its limits from the robot
+    description and the task (``[safety]``). `log_path` (.npz) receives the compressed time series
+    (also when the simulation fails or the safety layer stops the arm: the log so far, its stop in the
+    ``stop_*`` arrays, then the error is raised); `frame_times` [s] are rendered to
     ``{frame_prefix}_t{t:05.2f}.png`` with PyBullet's software renderer."""
     config = config or EpisodeConfig()
     result, error = simulate_episode(

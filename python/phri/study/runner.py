@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from phri.config import Task
-from phri.exceptions import SimulationError
+from phri.exceptions import SafetyStopError, SimulationError
 from phri.sim.episode import Planner, encode_log, episode_failure, simulate_episode
 from phri.sim.participant import ParticipantParams
 from phri.sim.world import World
@@ -64,8 +64,9 @@ class EpisodeRunner:
         return self._participants[p]
 
     def run(self, spec: EpisodeSpec) -> Outcome:
-        """Simulates `spec`. A :class:`~phri.exceptions.SimulationError` becomes a row with status
-        "failed" (metrics NaN, the message in `error`) and the partial log; other errors propagate."""
+        """Simulates `spec`. A :class:`~phri.exceptions.SimulationError`, or a safety stop of the arm
+        (:class:`~phri.exceptions.SafetyStopError`), becomes a row with status "failed" (metrics
+        NaN, the message in `error`) and the partial log; other errors propagate."""
         task = self.tasks[spec.task]
         name = spec.log_name(self.log_width)
         try:
@@ -75,10 +76,10 @@ class EpisodeRunner:
             )  # fmt: skip
         except SimulationError as e:  # before the simulation started: no log
             return Outcome(spec, failed_row(spec, str(e), ""), b"")
-        if error is not None and not isinstance(error, SimulationError):
+        if error is not None and not isinstance(error, SimulationError | SafetyStopError):
             raise error
         log = f"logs/{name}"
-        if isinstance(error, SimulationError):
+        if isinstance(error, SimulationError | SafetyStopError):
             row = failed_row(spec, str(episode_failure(task.name, spec.strategy, error, log)), log)
         else:
             row = episode_row(spec, result, task, log)

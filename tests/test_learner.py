@@ -2,11 +2,16 @@
 impedance baseline (learning=False), and one scripted push on the study's table task checked against
 an independent numpy reconstruction — the deformation (eq. 7) with H from a dense solve, Φ summed in
 numpy from Robot.frame_pose, the update (eq. 13, cost form) for the "all" and "confidence" rules —
-then the reference across the replan (C¹ blend or instant switch) and the shapes of the history."""
+then the reference across the replan (C¹ blend or instant switch) and the shapes of the history;
+replans on the worker thread (a simulated latency of one tick reproduces inline replanning, newer
+pushes supersede, a stalled or panicking worker never takes the tick down), reset(), the time and
+integer checks, and reference() from another thread during observe()."""
 
 from __future__ import annotations
 
 import re
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -575,3 +580,243 @@ def test_seed_plans_shorten_the_replan_after_a_push(make, robot):
     assert a.iterations < b.iterations and a.cost <= b.cost + 1e-9 * abs(b.cost)  # the solver's tolerance
     with pytest.raises(ex.InvalidParameterError, match="^seeds must be 0 .none. or at least 2"):
         make(seeds=1)
+
+
+# --------------------------------------------------------------------------------------------------
+# replans on the worker thread
+
+TICK = 0.001  # s, a 1 kHz loop
+
+
+def loop(learner: phri.Learner, robot, times, push_at=()):
+    """observe then reference at every tick of `times`, pushing down at the ticks in `push_at`
+    (computed on the learner's own reference); returns the observations and references."""
+    observed, references = [], []
+    for k, t in times:
+        tau = push_torque(robot, learner, t) if k in push_at else np.zeros(7)
+        observed.append(learner.observe(t, tau))
+        references.append(np.concatenate(learner.reference(t)))
+    return observed, np.array(references)
+
+
+def test_a_one_tick_latency_reproduces_inline_replanning(robot, make):
+    inline, worker = make(), make(replan_latency=TICK)
+    assert inline.replan_latency == 0.0 and worker.replan_latency == TICK
+    adopted = []
+    for k in range(3000, 6001):
+        t = k * TICK
+        tau = push_torque(robot, inline, t) if 4000 <= k < 4500 and k % 100 == 0 else np.zeros(7)
+        a, b = inline.observe(t, tau), worker.observe(t, tau)
+        assert a[:2] == b[:2], f"tick {k}"
+        np.testing.assert_array_equal(inline.weights, worker.weights)
+        if worker.adopted:
+            adopted.append(k)
+        ra, rb = inline.reference(t), worker.reference(t)
+        if a[2]:
+            # Inline switched at t, blending in from the reference the worker still tracks.
+            np.testing.assert_allclose(ra[0], rb[0], rtol=0, atol=1e-12)
+        else:
+            for x, y in zip(ra, rb, strict=True):
+                np.testing.assert_array_equal(x, y)
+    assert adopted == [4001, 4101, 4201, 4301, 4401], "one tick after each push"
+    h, g = inline.history(), worker.history()
+    for key in ("t", "u_h", "delta_phi", "weights", "moved", "plan_t", "plans", "rejected_t"):
+        np.testing.assert_array_equal(getattr(h, key), getattr(g, key), err_msg=key)
+    assert [r.iterations for r in h.replans] == [r.iterations for r in g.replans]
+
+
+def test_a_simulated_latency_adopts_only_the_newest_replan_at_its_time(robot, make):
+    learner = make(replan_latency=0.25)
+    plan0 = learner.plan
+    running, replanned = {}, []
+    for k in range(3900, 5001):
+        t = k * TICK
+        tau = push_torque(robot, learner, t) if k in (4000, 4100) else np.zeros(7)
+        obs = learner.observe(t, tau)
+        running[k] = learner.replan_running_since
+        if obs[2]:
+            replanned.append((k, learner.adopted))
+        if k < 4350:
+            np.testing.assert_array_equal(learner.plan, plan0)
+    # The push at 4.1 s superseded the one at 4.0 s; its plan is due at 4.35 s.
+    assert replanned == [(4350, True)]
+    assert (running[3999], running[4050], running[4349], running[4350]) == (None, 4.0, 4.1, None)
+    assert learner.superseded_replans == 1 and learner.last_replan_converged is True
+    history = learner.history()
+    assert history.plan_t.tolist() == [0.0, 4349 * TICK], "blended in from the tick before"
+    assert history.replans[0] is None and history.replans[1] is not None
+
+
+def test_with_the_wall_clock_a_stalled_worker_never_holds_up_observe(robot, make):
+    learner = make(replan_latency=None)
+    assert learner.replan_latency is None
+    plan0 = learner.plan
+    learner._debug_stall_worker(0.3)
+    learner.observe(1.0, push_torque(robot, learner, 1.0))
+    began = time.monotonic()
+    k = 0
+    while not learner.adopted:
+        k += 1
+        assert time.monotonic() - began < 60, "never adopted"
+        time.sleep(TICK)
+        learner.observe(min(1.0 + k * TICK, 14.0), np.zeros(7))
+        if not learner.adopted:
+            assert learner.replan_running_since == 1.0
+            np.testing.assert_array_equal(learner.plan, plan0)
+    assert time.monotonic() - began >= 0.3 and k > 10, "ticks went on during the stall"
+    assert learner.replan_running_since is None and len(learner.history().plan_t) == 2
+
+
+@pytest.mark.parametrize("latency", [0.01, None], ids=["simulated", "wall-clock"])
+def test_a_worker_panic_is_a_typed_error_once(robot, make, latency):
+    learner = make(replan_latency=latency)
+    plan0 = learner.plan
+    learner._debug_panic_worker()
+    learner.observe(4.0, push_torque(robot, learner, 4.0))
+    errors, k = [], 0
+    while learner.replan_pending:
+        k += 1
+        assert k < 20_000
+        time.sleep(1e-4)
+        try:
+            learner.observe(4.0 + k * TICK, np.zeros(7))
+        except Exception as e:  # noqa: BLE001 - a PanicException is a BaseException and escapes
+            errors.append(e)
+    assert len(errors) == 1 and isinstance(errors[0], ex.ReplanWorkerError), errors
+    assert "panicked" in str(errors[0])
+    np.testing.assert_array_equal(learner.plan, plan0)
+    assert len(learner.history().rejected) == 1
+
+
+def test_a_replan_that_does_not_converge_is_adopted_and_said_so(robot, features):
+    optimizer = phri.TrajectoryOptimizer(features, WAYPOINTS, duration=DURATION, max_iterations=2)
+    update = phri.WeightUpdate(STEP, LOWER, UPPER, learned=LEARNED)
+    learner = phri.Learner(
+        features, phri.Deformation(), update, phri.InteractionDetector(), optimizer, INITIAL,
+        PICK_BASIC, PLACE_LOWER, duration=DURATION, replan_latency=0.01,
+    )  # fmt: skip
+    assert learner.last_replan_converged is None
+    learner.observe(4.0, push_torque(robot, learner, 4.0))
+    for k in range(1, 11):
+        learner.observe(4.0 + k * TICK, np.zeros(7))
+    assert learner.last_replan_converged is False and len(learner.history().plan_t) == 2
+
+
+def test_dropping_a_learner_with_a_stalled_worker_returns(robot, make):
+    learner = make(replan_latency=None)
+    learner._debug_stall_worker(60.0)
+    learner.observe(1.0, push_torque(robot, learner, 1.0))
+    time.sleep(0.05)
+    began = time.monotonic()
+    del learner
+    assert time.monotonic() - began < 30
+
+
+def test_fault_hooks_need_a_worker(make):
+    learner = make()
+    with pytest.raises(ex.InvalidParameterError, match="needs a replan worker"):
+        learner._debug_stall_worker(1.0)
+    with pytest.raises(ex.InvalidParameterError, match="^seconds must be in"):
+        make(replan_latency=None)._debug_stall_worker(-1.0)
+
+
+# --------------------------------------------------------------------------------------------------
+# times, reset, threads, integer and speed arguments
+
+
+@pytest.mark.parametrize("latency", [0.0, 0.05, None], ids=["inline", "simulated", "wall-clock"])
+def test_times_outside_the_task_or_going_back_are_refused_and_change_nothing(robot, make, latency):
+    learner = make(replan_latency=latency)
+    learner.observe(2.0, np.zeros(7))
+    tau = push_torque(robot, learner, 4.0)
+    for t in (5000.0, DURATION + 0.02, -1e-9):
+        with pytest.raises(
+            ex.InvalidParameterError, match=r"^t must be a time within the task, in \[0, 15.01\] s"
+        ):
+            learner.observe(t, tau)
+    with pytest.raises(
+        ex.InvalidParameterError, match="^t must not go back in time: got 1.9 s after an observe at 2"
+    ):
+        learner.observe(1.9, tau)
+    assert len(learner.history()) == 0 and learner.weights.tolist() == INITIAL
+    assert learner.observe(4.0, tau)[:2] == (True, True), "a valid push still learns"
+    assert phri.Learner.TIME_SLACK == 0.01
+    learner.observe(DURATION + phri.Learner.TIME_SLACK, np.zeros(7))
+
+
+@pytest.mark.parametrize("latency", [0.0, TICK], ids=["inline", "one-tick"])
+def test_reset_starts_again_as_a_fresh_learner(robot, make, latency):
+    def episode(learner):
+        return loop(learner, robot, [(k, k * TICK) for k in range(3900, 4400)], push_at=(4000, 4100, 4200))
+
+    fresh, reused = make(replan_latency=latency), make(replan_latency=latency)
+    plan0 = reused.plan
+    _, want = episode(fresh)
+    episode(reused)
+    reused.observe(4.5, push_torque(robot, reused, 4.5))
+    reused.reset()
+    assert reused.weights.tolist() == INITIAL and reused.replan_running_since is None
+    np.testing.assert_array_equal(reused.plan, plan0)
+    assert len(reused.history()) == 0 and reused.history().plan_t.tolist() == [0.0]
+    _, got = episode(reused)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(reused.history().plans, fresh.history().plans)
+
+
+def test_reference_from_another_thread_during_observe(robot, make):
+    # Inline replans release the GIL for milliseconds: another thread's reference() waits for the
+    # observe rather than failing.
+    learner = make()
+    stop, failures, samples = threading.Event(), [], [0]
+
+    def read():
+        out = (np.zeros(7), np.zeros(7), np.zeros(7))
+        while not stop.is_set():
+            try:
+                learner.reference(4.0, out=out)
+                _ = learner.weights, learner.replan_running_since
+                samples[0] += 1
+            except BaseException as e:  # noqa: BLE001 - a PanicException too
+                failures.append(e)
+                return
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    try:
+        for k in range(10):
+            t = 4.0 + 0.1 * k
+            learner.observe(t, push_torque(robot, learner, t))
+    finally:
+        stop.set()
+        reader.join()
+    assert failures == [] and samples[0] > 0
+    assert len(learner.history().plan_t) > 1
+
+
+@pytest.mark.parametrize("name", ["replan_iterations", "seeds"])
+@pytest.mark.parametrize("value", [-1, 2**64, 10**100])
+def test_integer_arguments_out_of_range_name_the_argument(make, name, value):
+    with pytest.raises(ex.InvalidParameterError, match=f"^{name} must be an integer in \\[0, "):
+        make(**{name: value})
+
+
+def test_integer_arguments_of_another_type_name_the_argument(make):
+    with pytest.raises(TypeError, match="^argument 'seeds': must be an int, got float$"):
+        make(seeds=2.0)
+
+
+@pytest.mark.parametrize("speed", [5e-324, 1e-310, 1e-4, 1.5])
+def test_absurd_transition_speeds_are_refused(make, speed):
+    with pytest.raises(ex.InvalidParameterError, match="^transition_speed must be a finite fraction"):
+        make(transition_speed=speed)
+
+
+@pytest.mark.parametrize("latency", [-0.001, np.nan, np.inf, DURATION + 1])
+def test_bad_replan_latencies_are_refused(make, latency):
+    with pytest.raises(ex.InvalidParameterError, match="^replan_latency must be a time in \\[0, duration"):
+        make(replan_latency=latency)
+
+
+def test_a_budget_needs_inline_replans(make):
+    with pytest.raises(ex.InvalidParameterError, match="^replan_iterations budgets inline replans only"):
+        make(replan_latency=None, replan_iterations=3)

@@ -534,7 +534,15 @@ class PlanLevels:
 
 @final
 class Learner:
-    """Algorithm 1: deform, update and replan at every sampled interaction."""
+    """Algorithm 1: deform, update and replan at every sampled interaction.
+
+    ``replan_latency`` [s]: 0.0 replans inline in ``observe``; L > 0 replans on a worker thread and
+    adopts the plan at the first ``observe`` with t >= t_push + L (waiting for the worker there:
+    deterministic, for simulation); None replans on the worker and adopts at the first ``observe``
+    after it finished (hardware; ``observe`` never waits). ``observe`` takes t in
+    [0, duration + 0.01] s, never going back (``reset()`` starts again)."""
+
+    TIME_SLACK: ClassVar[float]
 
     def __new__(
         cls,
@@ -554,9 +562,13 @@ class Learner:
         transition_speed: float = 0.8,
         replan_iterations: int = 0,
         seeds: int = 0,
+        replan_latency: float | None = 0.0,
     ) -> Learner: ...
-    def observe(self, t: float, tau_measured: _Array) -> tuple[bool, bool, bool]: ...
+    def observe(self, t: float, tau_measured: _Array) -> tuple[bool, bool, bool]:
+        """(sampled, interacted, replanned); replanned: a replan's outcome arrived at this call
+        (inline: the robot replanned; with a worker: a plan was adopted or rejected)."""
     def reference(self, t: float, *, out: Sequence[_F64] | None = None) -> _Triple: ...
+    def reset(self) -> None: ...
     @property
     def weights(self) -> _F64: ...
     @property
@@ -565,7 +577,23 @@ class Learner:
     def learning(self) -> bool: ...
     @property
     def replan_pending(self) -> bool: ...
+    @property
+    def replan_running_since(self) -> float | None:
+        """Time [s] of the push whose replan is under way, or None."""
+    @property
+    def superseded_replans(self) -> int: ...
+    @property
+    def last_replan_converged(self) -> bool | None: ...
+    @property
+    def adopted(self) -> bool:
+        """Whether the last ``observe`` adopted a new plan."""
+    @property
+    def replan_latency(self) -> float | None: ...
     def history(self) -> LearnerHistory: ...
+    def _debug_stall_worker(self, seconds: float) -> None:
+        """Testing only: the worker's next replan first stalls for ``seconds`` [s]."""
+    def _debug_panic_worker(self) -> None:
+        """Testing only: the worker's next replan panics (observe then raises ReplanWorkerError)."""
 
 @final
 class LearnerHistory:

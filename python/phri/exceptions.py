@@ -16,6 +16,7 @@ __all__ = [
     "NotConvergedError",
     "PhriError",
     "PlanningError",
+    "ReplanWorkerError",
     "RobotFaultError",
     "SafetyStopError",
     "ShapeError",
@@ -56,6 +57,12 @@ class ConfigError(PhriError, ValueError):
 class PlanningError(PhriError, ValueError):
     """A task that cannot be planned as asked: its goal too far from its start for its duration at the
     allowed joint speeds, or its clearance above the table out of reach."""
+
+
+class ReplanWorkerError(PhriError, RuntimeError):
+    """The learner's replan worker thread failed: a panic inside phri (a bug to report, with the
+    message) or a worker that stopped. Raised once, by the next ``Learner.observe``; the arm kept
+    the plan it was tracking and the learner goes on (later corrections replan again)."""
 
 
 class MissingExtraError(PhriError, ImportError):

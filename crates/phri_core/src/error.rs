@@ -32,6 +32,11 @@ pub enum PhriError {
     #[error("{reason}")]
     Planning { reason: String },
 
+    /// The learner's replan worker failed: a panic inside phri (a bug to report) or a worker that
+    /// stopped. The arm kept the plan it was tracking.
+    #[error("{reason}")]
+    ReplanWorker { reason: String },
+
     /// An iterative solver stopped without meeting its tolerance.
     #[error("{what} did not converge after {iterations} iterations (residual {residual:e})")]
     NotConverged { what: String, iterations: usize, residual: f64 },

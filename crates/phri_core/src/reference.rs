@@ -76,6 +76,10 @@ struct Blend {
     rate: Vec<f64>,
 }
 
+/// Smallest speed limit of a blend ([`TimedTrajectory::switch_to`]) [rad/s]: slower than a degree
+/// in five hours; a blend at it already lasts years.
+pub const MIN_SPEED_LIMIT: f64 = 1e-6;
+
 /// Points of a blend at which the speed limit is checked.
 const BLEND_CHECKS: usize = 64;
 
@@ -164,8 +168,13 @@ impl TimedTrajectory {
         check_finite("t", &[t])?;
         if !speed_limits.is_empty() {
             crate::error::check_vector("speed_limits", speed_limits, self.n)?;
-            if let Some((j, v)) = speed_limits.iter().enumerate().find(|(_, v)| !(**v > 0.0)) {
-                return Err(PhriError::invalid("speed_limits", format!("[{j}] must be > 0 rad/s, got {v}")));
+            // A smaller limit (a subnormal one) would make the blend time overflow and the
+            // reference NaN.
+            if let Some((j, v)) = speed_limits.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= MIN_SPEED_LIMIT)) {
+                return Err(PhriError::invalid(
+                    "speed_limits",
+                    format!("[{j}] must be a finite speed >= {MIN_SPEED_LIMIT} rad/s, got {v}"),
+                ));
             }
         }
         let mut sc = std::mem::take(&mut self.scratch);

@@ -1,17 +1,17 @@
 //! The per-tick paths allocate nothing: a counting global allocator proves it. It counts only on
-//! the measuring thread: the test harness's own threads allocate whenever they like.
+//! the measuring thread: the test harness's own threads, and the learner's replan worker, allocate
+//! whenever they like.
 
 mod common;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
 use phri_core::deform::{DeformParams, Deformation};
 use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
-use phri_core::learner::{Learner, LearnerParams};
+use phri_core::learner::{Learner, LearnerParams, ReplanLatency};
 use phri_core::reference::{Interpolation, TimedTrajectory};
 use phri_core::safety::{SafetyLayer, SafetyLimits, SafetyParams, ToolBox};
 use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
@@ -20,16 +20,16 @@ use phri_core::wall::{VirtualWall, WallParams};
 
 struct Counting;
 
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
 thread_local! {
-    /// Whether allocations on this thread are counted (const-initialised: reading it allocates nothing).
+    /// Whether allocations on this thread are counted, and how many were (const-initialised:
+    /// reading them allocates nothing; per thread, so tests running side by side do not mix).
     static COUNTING: Cell<bool> = const { Cell::new(false) };
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
 }
 
 fn count() {
     if COUNTING.with(Cell::get) {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        ALLOCATIONS.with(|a| a.set(a.get() + 1));
     }
 }
 
@@ -52,6 +52,11 @@ static GLOBAL: Counting = Counting;
 
 /// Builds everything a tick needs up front, so the measured loop holds nothing but tick work.
 fn learner() -> Learner {
+    learner_with(ReplanLatency::default())
+}
+
+/// The table task's learner sampling every tick, replanning as `latency` says.
+fn learner_with(latency: ReplanLatency) -> Learner {
     let model = Arc::new(common::jaco2());
     let frame = model.frame_id("j2s7s300_link_7").unwrap();
     let fs = common::study::study_features(model, frame, &["efficiency", "table"]);
@@ -61,7 +66,7 @@ fn learner() -> Learner {
     let deformation = Deformation::new(DeformParams::default()).unwrap();
     let start = common::deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);
     let goal = common::deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]);
-    let params = LearnerParams { sample_period: 1e-3, ..Default::default() };
+    let params = LearnerParams { sample_period: 1e-3, replan_latency: latency, ..Default::default() };
     Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &start, &goal).unwrap()
 }
 
@@ -111,7 +116,7 @@ fn a_control_tick_allocates_nothing() {
     let q = [3.0; 7];
     let qd = [0.01; 7];
     COUNTING.with(|c| c.set(true));
-    let before = ALLOCATIONS.load(Ordering::SeqCst);
+    let before = ALLOCATIONS.with(Cell::get);
     for k in 0..10_000 {
         let t = k as f64 * 1e-3;
         plan.sample(t, &mut q_ref, &mut qd_ref, &mut qdd_ref);
@@ -136,8 +141,62 @@ fn a_control_tick_allocates_nothing() {
             plan2.switch_to(&shifted, t, &[0.5; 7]).unwrap();
         }
     }
-    let after = ALLOCATIONS.load(Ordering::SeqCst);
+    let after = ALLOCATIONS.with(Cell::get);
     COUNTING.with(|c| c.set(false));
     assert_eq!(after - before, 0, "the control tick allocated {} times", after - before);
     assert!(tau.iter().all(|v| v.is_finite()));
+}
+
+/// Allocations on this thread during `f`.
+fn allocations<T>(f: impl FnOnce() -> T) -> (T, usize) {
+    COUNTING.with(|c| c.set(true));
+    let before = ALLOCATIONS.with(Cell::get);
+    let value = f();
+    let after = ALLOCATIONS.with(Cell::get);
+    COUNTING.with(|c| c.set(false));
+    (value, after - before)
+}
+
+#[test]
+fn with_a_replan_worker_only_ticks_that_record_a_push_allocate() {
+    // A push on joint 2 (threshold 8 N·m): deform, update, and a replan handed to the worker.
+    let push = [0.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    for latency in [ReplanLatency::Fixed(0.005), ReplanLatency::WallClock] {
+        let mut learner = learner_with(latency);
+        let (mut q_ref, mut qd_ref, mut qdd_ref) = ([0.0; 7], [0.0; 7], [0.0; 7]);
+        let (mut adoptions, mut quiet_ticks, mut k) = (0, 0, 1000);
+        // Two single pushes, then two on consecutive ticks (the second supersedes the first's replan).
+        for pushes in [[1000, 1000], [3000, 3000], [5000, 5001]] {
+            if pushes[0] == 5000 {
+                // Held up, the worker cannot finish the first replan before the second push (with
+                // the simulated latency, the tick the plan is due waits for it).
+                learner.debug_stall_worker(0.2).unwrap();
+            }
+            while k <= pushes[1] || learner.replan_pending() {
+                // The robot's clock; it stays at 14 s if a loaded machine makes the worker slow.
+                let t = (k as f64 * 1e-3).min(14.0);
+                let tau = if pushes.contains(&k) { push } else { [0.0; 7] };
+                let (obs, count) = allocations(|| {
+                    let obs = learner.observe(t, &tau).unwrap();
+                    learner.reference(t, &mut q_ref, &mut qd_ref, &mut qdd_ref);
+                    obs
+                });
+                if obs.interacted {
+                    assert!(learner.replan_pending(), "{latency:?}: the push at tick {k} asked for a replan");
+                } else {
+                    assert_eq!(count, 0, "{latency:?}: tick {k} (adopted: {}) allocated {count} times", obs.adopted);
+                    quiet_ticks += 1;
+                }
+                adoptions += usize::from(obs.adopted);
+                k += 1;
+                if latency == ReplanLatency::WallClock {
+                    std::thread::sleep(std::time::Duration::from_micros(100));
+                }
+            }
+        }
+        assert_eq!(adoptions, 3, "{latency:?}: one plan per push, the superseded one excepted");
+        assert_eq!(learner.superseded_replans(), 1);
+        assert!(quiet_ticks > 4000, "{quiet_ticks}");
+        assert!(q_ref.iter().all(|v| v.is_finite()));
+    }
 }

@@ -16,6 +16,7 @@ pub enum Kind {
     Urdf,
     NotConverged,
     Planning,
+    ReplanWorker,
 }
 
 impl Kind {
@@ -28,11 +29,12 @@ impl Kind {
             Kind::Urdf => "UrdfError",
             Kind::NotConverged => "NotConvergedError",
             Kind::Planning => "PlanningError",
+            Kind::ReplanWorker => "ReplanWorkerError",
         }
     }
 
     fn cell(self) -> &'static PyOnceLock<Py<PyType>> {
-        static CELLS: [PyOnceLock<Py<PyType>>; 7] = [const { PyOnceLock::new() }; 7];
+        static CELLS: [PyOnceLock<Py<PyType>>; 8] = [const { PyOnceLock::new() }; 8];
         &CELLS[self as usize]
     }
 }
@@ -57,6 +59,7 @@ pub fn to_py(e: PhriError) -> PyErr {
         PhriError::Urdf { .. } => Kind::Urdf,
         PhriError::NotConverged { .. } => Kind::NotConverged,
         PhriError::Planning { .. } => Kind::Planning,
+        PhriError::ReplanWorker { .. } => Kind::ReplanWorker,
     };
     error(kind, e.to_string())
 }

@@ -1,8 +1,11 @@
 //! `phri.Learner`: Algorithm 1, the online learner that owns the plan and the weights.
 
+use std::sync::{Mutex, MutexGuard, TryLockError};
+
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadwriteArray1, PyUntypedArrayMethods};
-use phri_core::learner::{History, Interaction, Learner, LearnerParams, DEFAULT_TRANSITION_SPEED};
+use phri_core::learner::{History, Interaction, Learner, LearnerParams, ReplanLatency, DEFAULT_TRANSITION_SPEED, TIME_SLACK};
 use phri_core::reference::Interpolation;
+use pyo3::exceptions::{PyOverflowError, PyTypeError};
 use pyo3::prelude::*;
 
 use crate::arrays::{vector, ArrayIn};
@@ -17,22 +20,67 @@ use crate::update::{PyUpdateInfo, PyWeightUpdate};
 /// and replan warm-started (eq. 4); `reference(t)` gives the control law its target. The components
 /// are copied in, so the objects passed can be reused. `learning=False` is the impedance baseline.
 /// After a replan the reference blends into the new plan with joint speeds of at most
-/// `transition_speed` × the velocity limits (0: switch at once, as the original did).
+/// `transition_speed` × the velocity limits (0: switch at once, as the original did; otherwise in
+/// [0.001, 1]).
 /// Replans start from the current plan and the optimiser's coarse plans that led to it (see
 /// `TrajectoryOptimizer`'s `coarsening`), so a large change of the weights is mostly worked out
-/// on the coarse level. `replan_iterations` caps the Newton iterations of a replan per `observe`
-/// call on each level (0: to convergence at once); an unfinished replan goes on at the next calls
-/// from where it stopped (`replan_pending`).
+/// on the coarse level. `replan_iterations` caps the Newton iterations of an inline replan per
+/// `observe` call on each level (0: to convergence at once); an unfinished replan goes on at the
+/// next calls from where it stopped (`replan_pending`).
 /// `seeds` plans s values of every learned weight between its bounds at construction (s^L plans,
 /// at most 64) and starts each replan from the better of the current plan and the nearest seed.
-#[pyclass(name = "Learner", module = "phri._phri")]
+///
+/// `replan_latency` says where replans run and when their plans take effect:
+/// - `0.0` (default): inline, inside `observe`, as Algorithm 1 is written.
+/// - `L > 0` [s] (at most `duration`): on a worker thread, with a deterministic simulated latency:
+///   the plan is adopted at the first `observe` with t ≥ t_push + L, which waits for the worker
+///   (GIL released) if it has not finished, so simulations do not depend on the machine's load.
+///   With L one tick of a loop that calls `observe` every tick, results are the inline ones.
+/// - `None`: on a worker thread, adopted at the first `observe` after it finished (hardware: the
+///   wall clock decides); `observe` then never waits.
+///
+/// With a worker, `observe` detects, deforms and updates (microseconds) and hands the replan over;
+/// a newer push supersedes a replan still running. Adopted plans blend in from the reference at the
+/// previous `observe`'s time. `observe(t, ...)` needs t in [0, duration + 0.01] s, never going back
+/// (`reset()` starts again). The learner may be shared between threads: `reference` from another
+/// thread waits for an `observe` in progress.
+#[pyclass(name = "Learner", module = "phri._phri", frozen)]
 pub struct PyLearner {
-    learner: Learner,
+    learner: Mutex<Learner>,
     n: usize,
+    /// `observe` may take long (inline replans, or waiting for a simulated latency): it releases
+    /// the GIL then. With the wall clock it takes microseconds and keeps it.
+    may_wait: bool,
 }
 
 // The signature spells the default out so that Python's introspection shows it.
 const _: () = assert!(DEFAULT_TRANSITION_SPEED == 0.8);
+
+/// `value` as a count (an int ≥ 0) for argument `arg`: an InvalidParameterError naming it when out
+/// of range, a TypeError (named by PyO3) when not an int.
+fn count(arg: &str, value: &Bound<'_, PyAny>) -> PyResult<usize> {
+    match value.extract::<usize>() {
+        Ok(v) => Ok(v),
+        Err(e) if e.is_instance_of::<PyOverflowError>(value.py()) => {
+            Err(error(Kind::InvalidParameter, format!("{arg} must be an integer in [0, {}], got {value}", usize::MAX)))
+        }
+        // PyO3 prefixes a TypeError with "argument '<arg>': ".
+        Err(_) => Err(PyTypeError::new_err(format!("must be an int, got {}", value.get_type().qualname()?))),
+    }
+}
+
+fn replan_iterations_arg(value: &Bound<'_, PyAny>) -> PyResult<usize> {
+    count("replan_iterations", value)
+}
+
+fn seeds_arg(value: &Bound<'_, PyAny>) -> PyResult<usize> {
+    count("seeds", value)
+}
+
+/// Locks `learner`, taking over a mutex poisoned by a panic (which phri's code does not make).
+fn lock(learner: &Mutex<Learner>) -> MutexGuard<'_, Learner> {
+    learner.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 /// `a` as an exclusive view for writing n values: C-contiguous, writable, not aliasing another.
 fn writable<'py>(arg: &str, a: &Bound<'py, PyArray1<f64>>, n: usize) -> PyResult<PyReadwriteArray1<'py, f64>> {
@@ -67,14 +115,36 @@ fn buffers<'py>(out: &Bound<'py, PyAny>) -> PyResult<Triple<'py>> {
 
 type Triple<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
+impl PyLearner {
+    /// The learner, locked: at once if free, else once another thread's `observe` lets go of it,
+    /// waiting with the GIL released (that `observe` may need it back to return).
+    fn learner(&self, py: Python<'_>) -> MutexGuard<'_, Learner> {
+        loop {
+            match self.learner.try_lock() {
+                Ok(guard) => return guard,
+                Err(TryLockError::Poisoned(e)) => return e.into_inner(),
+                Err(TryLockError::WouldBlock) => py.detach(|| drop(lock(&self.learner))),
+            }
+        }
+    }
+}
+
 #[pymethods]
 impl PyLearner {
+    /// `observe` accepts times up to this long after the task's duration [s].
+    #[classattr]
+    const TIME_SLACK: f64 = TIME_SLACK;
+
     #[new]
     #[pyo3(signature = (
         features, deformation, update, detector, optimizer, weights, start, goal, *,
         duration = 15.0, sample_period = 0.1, interpolation = "cubic", learning = true,
-        transition_speed = 0.8, replan_iterations = 0, seeds = 0
+        transition_speed = 0.8, replan_iterations = 0, seeds = 0, replan_latency = Some(0.0)
     ))]
+    // Spelled out: the generated one would show `Some(0.0)` as `...`.
+    #[pyo3(text_signature = "(features, deformation, update, detector, optimizer, weights, start, goal, *, \
+        duration=15.0, sample_period=0.1, interpolation='cubic', learning=True, transition_speed=0.8, \
+        replan_iterations=0, seeds=0, replan_latency=0.0)")]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -91,8 +161,9 @@ impl PyLearner {
         interpolation: &str,
         learning: bool,
         transition_speed: f64,
-        replan_iterations: usize,
-        seeds: usize,
+        #[pyo3(from_py_with = replan_iterations_arg)] replan_iterations: usize,
+        #[pyo3(from_py_with = seeds_arg)] seeds: usize,
+        replan_latency: Option<f64>,
     ) -> PyResult<Self> {
         let interpolation = match interpolation {
             "cubic" => Interpolation::Cubic,
@@ -106,23 +177,42 @@ impl PyLearner {
         let weights = vector("weights", &weights, set.len())?.into_owned();
         let start = vector("start", &start, n)?.into_owned();
         let goal = vector("goal", &goal, n)?.into_owned();
-        let params =
-            LearnerParams { learning, sample_period, duration, interpolation, transition_speed, replan_iterations, seeds };
+        let replan_latency = replan_latency.map_or(ReplanLatency::WallClock, ReplanLatency::Fixed);
+        let params = LearnerParams {
+            learning,
+            sample_period,
+            duration,
+            interpolation,
+            transition_speed,
+            replan_iterations,
+            seeds,
+            replan_latency,
+        };
         let (deformation, update, detector, optimizer) =
             (deformation.deformation.clone(), update.update.clone(), detector.detector.clone(), optimizer.optimizer.clone());
         let learner = py
             .detach(|| Learner::new(params, set, deformation, update, detector, optimizer, &weights, &start, &goal))
             .py_err()?;
-        Ok(PyLearner { learner, n })
+        Ok(PyLearner { learner: Mutex::new(learner), n, may_wait: replan_latency != ReplanLatency::WallClock })
     }
 
-    /// One tick at time `t` [s] with the measured joint torque of the person [N·m]. Returns
-    /// (sampled, interacted, replanned). Between sample instants it returns at once.
-    fn observe(&mut self, py: Python<'_>, t: f64, tau_measured: ArrayIn<'_>) -> PyResult<(bool, bool, bool)> {
+    /// One tick at time `t` [s] (in [0, duration + 0.01], never going back) with the measured joint
+    /// torque of the person [N·m]. Returns (sampled, interacted, replanned): the call fell on a
+    /// sample instant; the sample was an interaction; a replan's outcome arrived — inline, the
+    /// robot replanned at this push; with a worker (`replan_latency` not 0), a plan requested
+    /// earlier was adopted or rejected at this call (`adopted` tells which). Between sample
+    /// instants it returns at once (after adopting a finished replan that is due). A refused `t`
+    /// or torque leaves the learner as it was; a failed replan worker raises ReplanWorkerError
+    /// once, the arm keeping its plan.
+    fn observe(&self, py: Python<'_>, t: f64, tau_measured: ArrayIn<'_>) -> PyResult<(bool, bool, bool)> {
         let tau = vector("tau_measured", &tau_measured, self.n)?;
-        let learner = &mut self.learner;
-        // Replanning takes a millisecond or more: let other Python threads run meanwhile.
-        let obs = py.detach(|| learner.observe(t, &tau)).py_err()?;
+        let obs = if self.may_wait {
+            // An inline replan or a simulated latency may take milliseconds: let other threads run.
+            py.detach(|| lock(&self.learner).observe(t, &tau))
+        } else {
+            self.learner(py).observe(t, &tau)
+        }
+        .py_err()?;
         Ok((obs.sampled, obs.interacted, obs.replanned))
     }
 
@@ -140,43 +230,103 @@ impl PyLearner {
         };
         let (mut q, mut qd, mut qdd) =
             (writable("out[0]", &out.0, self.n)?, writable("out[1]", &out.1, self.n)?, writable("out[2]", &out.2, self.n)?);
-        self.learner.reference(t, slice_mut("out[0]", &mut q)?, slice_mut("out[1]", &mut qd)?, slice_mut("out[2]", &mut qdd)?);
+        let (q_out, qd_out, qdd_out) =
+            (slice_mut("out[0]", &mut q)?, slice_mut("out[1]", &mut qd)?, slice_mut("out[2]", &mut qdd)?);
+        self.learner(py).reference(t, q_out, qd_out, qdd_out);
         drop((q, qd, qdd));
         Ok(out)
+    }
+
+    /// Back to t = 0 with the initial plan and weights and an empty history (the initial plan
+    /// only), as constructed; a replan under way is cancelled. Seed plans are kept.
+    fn reset(&self, py: Python<'_>) {
+        self.learner(py).reset();
     }
 
     /// Current cost weights w.
     #[getter]
     fn weights<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, self.learner.weights())
+        PyArray1::from_slice(py, self.learner(py).weights())
     }
 
-    /// Current plan ξ_R, (N, n).
+    /// Current plan ξ_R, (N, n) [rad].
     #[getter]
     fn plan<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let plan = self.learner.plan();
+        let learner = self.learner(py);
+        let plan = learner.plan();
         PyArray1::from_slice(py, plan.waypoints()).reshape([plan.len(), self.n])
     }
 
-    /// Whether a replan cut short by `replan_iterations` is still converging.
+    /// Whether a replan is under way: inline, one cut short by `replan_iterations` is still
+    /// converging; with a worker, one was requested and not yet adopted or rejected.
     #[getter]
-    fn replan_pending(&self) -> bool {
-        self.learner.replan_pending()
+    fn replan_pending(&self, py: Python<'_>) -> bool {
+        self.learner(py).replan_pending()
+    }
+
+    /// Time [s] of the push whose replan is under way (requested, not yet adopted or rejected), or
+    /// None: a watchdog compares it with the clock to see a stalled worker.
+    #[getter]
+    fn replan_running_since(&self, py: Python<'_>) -> Option<f64> {
+        self.learner(py).replan_running_since()
+    }
+
+    /// Requested replans that a newer push superseded before they were adopted (since construction
+    /// or `reset()`).
+    #[getter]
+    fn superseded_replans(&self, py: Python<'_>) -> u64 {
+        self.learner(py).superseded_replans()
+    }
+
+    /// Whether the optimiser converged for the last plan adopted from a replan (None: none yet).
+    #[getter]
+    fn last_replan_converged(&self, py: Python<'_>) -> Option<bool> {
+        self.learner(py).last_replan_converged()
+    }
+
+    /// Whether the last `observe` adopted a new plan (it blends in from that call on).
+    #[getter]
+    fn adopted(&self, py: Python<'_>) -> bool {
+        self.learner(py).last_observation().adopted
+    }
+
+    /// Where replans run: 0.0 inline, L > 0 [s] a worker with that simulated latency, None a
+    /// worker adopting as soon as it is done (wall clock).
+    #[getter]
+    fn replan_latency(&self, py: Python<'_>) -> Option<f64> {
+        match self.learner(py).params().replan_latency {
+            ReplanLatency::Fixed(latency) => Some(latency),
+            ReplanLatency::WallClock => None,
+        }
     }
 
     /// Whether the learner learns (False: the impedance baseline).
     #[getter]
-    fn learning(&self) -> bool {
-        self.learner.params().learning
+    fn learning(&self, py: Python<'_>) -> bool {
+        self.learner(py).params().learning
+    }
+
+    /// Testing only (fault injection): the replan worker's next replan first stalls for `seconds`
+    /// [s] (at most 60). Needs a worker (`replan_latency` not 0).
+    fn _debug_stall_worker(&self, py: Python<'_>, seconds: f64) -> PyResult<()> {
+        self.learner(py).debug_stall_worker(seconds).py_err()
+    }
+
+    /// Testing only (fault injection): the replan worker's next replan panics; the next `observe`
+    /// after it raises ReplanWorkerError. Needs a worker (`replan_latency` not 0).
+    fn _debug_panic_worker(&self, py: Python<'_>) -> PyResult<()> {
+        self.learner(py).debug_panic_worker().py_err()
     }
 
     /// What the learner recorded so far: every sampled interaction and every plan, as arrays.
     fn history(&self, py: Python<'_>) -> PyResult<PyLearnerHistory> {
-        PyLearnerHistory::new(py, self.learner.history(), self.n, self.learner.weights().len())
+        let learner = self.learner(py);
+        PyLearnerHistory::new(py, learner.history(), self.n, learner.weights().len())
     }
 
-    fn __repr__(&self) -> String {
-        format!("Learner(learning={}, weights={:?})", self.learner.params().learning, self.learner.weights())
+    fn __repr__(&self, py: Python<'_>) -> String {
+        let learner = self.learner(py);
+        format!("Learner(learning={}, weights={:?})", learner.params().learning, learner.weights())
     }
 }
 

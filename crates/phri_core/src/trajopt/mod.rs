@@ -26,6 +26,7 @@
 //! that the cost is C¹ (and piecewise C²).
 
 pub mod block_tridiagonal;
+mod cancel;
 mod collision;
 mod cost;
 mod levels;
@@ -41,6 +42,7 @@ use nalgebra::Matrix6xX;
 use crate::collision::Violation;
 use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::features::FeatureSet;
+pub use cancel::Cancellation;
 use collision::CollisionScratch;
 use cost::{Buffer, Derivatives, Model, Scratch};
 pub use levels::PlanLevels;
@@ -82,6 +84,8 @@ pub struct TrajectoryOptimizer {
     state: SolverState,
     /// Whether the coarse levels of the last solve all converged (true without any).
     coarse_converged: bool,
+    /// Stops later solves early once another thread supersedes them (see [`Cancellation`]).
+    cancel: Option<Cancellation>,
 }
 
 impl TrajectoryOptimizer {
@@ -106,6 +110,7 @@ impl TrajectoryOptimizer {
             resume: None,
             state: SolverState::default(),
             coarse_converged: true,
+            cancel: None,
             lower: model.lower_limits(),
             upper: model.upper_limits(),
             scratch: Scratch { data: model.data(), jacobian: Matrix6xX::zeros(dof), hz: vec![0.0; dof * dof] },
@@ -134,6 +139,16 @@ impl TrajectoryOptimizer {
             c.optimizer.set_max_iterations(cap)?;
         }
         Ok(())
+    }
+
+    /// Lets another thread stop later solves (on every level) at their next Newton iteration, as
+    /// at a `max_time` deadline; `None` removes the hook. A stopped solve reports what it reached,
+    /// not converged.
+    pub fn set_cancellation(&mut self, cancel: Option<Cancellation>) {
+        if let Some(c) = self.coarse.as_mut() {
+            c.optimizer.set_cancellation(cancel.clone());
+        }
+        self.cancel = cancel;
     }
 
     pub fn params(&self) -> &TrajoptParams {

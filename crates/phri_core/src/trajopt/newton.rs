@@ -132,7 +132,7 @@ impl TrajectoryOptimizer {
                 run.converged = true;
                 break;
             }
-            if deadline.is_some_and(|d| Instant::now() >= d) {
+            if deadline.is_some_and(|d| Instant::now() >= d) || self.cancel.as_ref().is_some_and(|c| c.requested()) {
                 break;
             }
             run.iterations += 1;

@@ -1,0 +1,735 @@
+//! Algorithm 1 of the paper, the online learner: it owns the current plan and the weights, and at
+//! every sampled interaction deforms the plan (eq. 7), updates the weights (eq. 13) and replans
+//! (eq. 4) warm-started, while `reference(t)` feeds the control law. With `learning = false` it is
+//! the impedance baseline: interactions are recorded but the plan never changes.
+//!
+//! # Where the replan runs ([`LearnerParams::replan_latency`])
+//! Inline (latency 0, the default), `observe` replans before it returns, as Algorithm 1 is written.
+//! Otherwise `observe` does the microseconds of detect → deform → update on the control thread and
+//! hands the replan to a worker thread (module `worker`); the control tick never waits for it except in
+//! simulated mode, and its plan is adopted later, blended in as an inline replan's is, from the
+//! reference of the previous `observe` (the last one the controller used):
+//! - [`ReplanLatency::Fixed`]`(L)`, L > 0: a deterministic, simulated latency. The plan is adopted
+//!   at the first `observe` with t ≥ t_request + L; that call waits for the worker if it has not
+//!   finished, so results do not depend on the machine's load. With L one tick of a loop that
+//!   calls `observe` every tick, the results are those of inline replanning, bit for bit.
+//! - [`ReplanLatency::WallClock`]: hardware. The plan is adopted at the first `observe` after the
+//!   worker finished; `observe` never waits.
+//!
+//! A newer correction supersedes a replan still running (its solve stops at the next Newton
+//! iteration); only the newest result is adopted, and an infeasible one is rejected as inline.
+
+mod history;
+mod planner;
+mod seeds;
+mod worker;
+
+use std::time::Duration;
+
+pub use history::{History, Interaction, RejectedPlan};
+pub use planner::infeasibility;
+use planner::Planner;
+use seeds::Seeds;
+use worker::{Outcome, ReplanWorker};
+
+use crate::deform::Deformation;
+use crate::error::{check_finite, check_vector, PhriError, Result};
+use crate::features::FeatureSet;
+use crate::interaction::InteractionDetector;
+use crate::reference::{Interpolation, TimedTrajectory, MIN_SPEED_LIMIT};
+use crate::trajopt::{TrajectoryOptimizer, TrajoptInfo};
+use crate::update::{relevance, UpdateRule, WeightUpdate};
+
+/// When a replan's plan takes effect (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ReplanLatency {
+    /// A fixed latency L [s]: 0 replans inline (Algorithm 1 as written, the default); L > 0
+    /// replans on the worker thread and adopts the plan at the first `observe` with
+    /// t ≥ t_request + L, waiting for the worker there if need be (simulation: deterministic).
+    Fixed(f64),
+    /// Replans on the worker thread and adopts the plan at the first `observe` after it finished
+    /// (hardware: the wall clock decides); `observe` never waits.
+    WallClock,
+}
+
+impl Default for ReplanLatency {
+    fn default() -> Self {
+        ReplanLatency::Fixed(0.0)
+    }
+}
+
+impl ReplanLatency {
+    /// Whether replans run on the worker thread.
+    pub fn uses_worker(self) -> bool {
+        self != ReplanLatency::Fixed(0.0)
+    }
+}
+
+/// Timing and mode of the learner.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LearnerParams {
+    /// Learn from interactions (Algorithm 1) or only record them (impedance baseline).
+    pub learning: bool,
+    /// Time between torque samples that may trigger an update [s]: 0.1 is the original's 10 Hz,
+    /// 0.001 updates at every tick of a 1 kHz loop.
+    pub sample_period: f64,
+    /// Task duration T [s].
+    pub duration: f64,
+    /// Interpolation of the plan for the reference.
+    pub interpolation: Interpolation,
+    /// After a replan the reference blends into the new plan with each joint's speed at most this
+    /// fraction of its velocity limit (`TimedTrajectory::switch_to`); 0 switches at once, as the
+    /// original did (the arm then snaps onto the new plan, faster than its limits). Either 0 or in
+    /// [[`MIN_TRANSITION_SPEED`], 1].
+    pub transition_speed: f64,
+    /// Newton iterations a replan may take per call of `observe` on each of the optimiser's levels
+    /// (0: replan to convergence at once, Algorithm 1 as written). With a budget, a replan that
+    /// has not converged goes on at the next calls from where it stopped, every tick, the robot
+    /// blending into each better plan as it comes; one call then stays within the budget's time
+    /// (at N = 31 here about 70 µs an iteration on the plan's 31 waypoints and 25 µs on the coarse
+    /// level's 11) whatever the push. Inline replanning only (`replan_latency` 0): a worker
+    /// replans to convergence (or the optimiser's own caps) off the control thread.
+    pub replan_iterations: usize,
+    /// Seed plans per learned weight (0: none). With s seeds, the learner plans at construction for
+    /// s evenly spaced values of every learned weight between its bounds (s^L plans for L learned
+    /// weights, at most [`MAX_SEEDS`]), and each replan starts from whichever of the current plan
+    /// and the seed nearest the new weights costs less at them. The authors' later code cached such
+    /// seeds on a weight grid against trajopt's local minima; here they also make the replan after a
+    /// large update short.
+    pub seeds: usize,
+    /// Where replans run and when their plans take effect: inline (`Fixed(0.0)`, the default), on
+    /// a worker thread after a simulated latency `Fixed(L)` [s] (0 < L ≤ `duration`), or on a
+    /// worker thread as soon as it is done (`WallClock`, hardware). See the module docs.
+    pub replan_latency: ReplanLatency,
+}
+
+/// Most seed plans a learner keeps (`LearnerParams::seeds`).
+pub const MAX_SEEDS: usize = 64;
+
+/// Smallest non-zero [`LearnerParams::transition_speed`] [fraction of the velocity limits]: slower
+/// blends would outlast any task (and a subnormal one overflows the blend time).
+pub const MIN_TRANSITION_SPEED: f64 = 1e-3;
+
+/// `observe` accepts times up to this long after the task's duration [s]: a loop's last ticks may
+/// run a little past T. Later times (a timestamp in ms, another clock) are refused.
+pub const TIME_SLACK: f64 = 0.01;
+
+/// Longest stall [`Learner::debug_stall_worker`] injects [s].
+pub const MAX_DEBUG_STALL: f64 = 60.0;
+
+impl Default for LearnerParams {
+    fn default() -> Self {
+        LearnerParams {
+            learning: true,
+            sample_period: 0.1,
+            duration: 15.0,
+            interpolation: Interpolation::Cubic,
+            transition_speed: DEFAULT_TRANSITION_SPEED,
+            replan_iterations: 0,
+            seeds: 0,
+            replan_latency: ReplanLatency::default(),
+        }
+    }
+}
+
+/// Default [`LearnerParams::transition_speed`]: plans use up to half the limits (the study's
+/// planner), so a blend on top of one stays within them with a margin for tracking.
+pub const DEFAULT_TRANSITION_SPEED: f64 = 0.8;
+
+/// What one `observe` call did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Observation {
+    /// The call fell on a sample instant (otherwise it only checked for a finished replan).
+    pub sampled: bool,
+    /// The sample exceeded the interaction thresholds.
+    pub interacted: bool,
+    /// A replan's outcome arrived in this call: inline, the robot replanned (the plan adopted or,
+    /// if infeasible, rejected); with a worker, a requested replan was adopted or rejected.
+    pub replanned: bool,
+    /// A new plan took effect in this call.
+    pub adopted: bool,
+}
+
+/// The replan a worker is solving for the control side.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    generation: u64,
+    /// Time of the interaction that asked for it [s].
+    t: f64,
+    /// Its record in `History::interactions`.
+    record: usize,
+}
+
+/// Where replans run.
+enum Replanner {
+    Inline(Box<Planner>),
+    Worker(ReplanWorker),
+}
+
+/// Algorithm 1.
+pub struct Learner {
+    params: LearnerParams,
+    features: FeatureSet,
+    deformation: Deformation,
+    update: WeightUpdate,
+    detector: InteractionDetector,
+    replanner: Replanner,
+    weights: Vec<f64>,
+    plan: TimedTrajectory,
+    /// What `reset` returns to.
+    initial_weights: Vec<f64>,
+    initial_plan: TimedTrajectory,
+    /// Index k of the next sample instant k·sample_period.
+    next_sample: f64,
+    /// Time of the previous `observe` [s] (None before the first).
+    last_t: Option<f64>,
+    /// transition_speed × velocity limits [rad/s] (empty: switch at once).
+    speed_limits: Vec<f64>,
+    /// Inline: a replan cut short by `replan_iterations` is still converging, since this time [s].
+    replan_pending: bool,
+    pending_since: f64,
+    /// Worker: the replan requested and not yet adopted or rejected.
+    pending: Option<Pending>,
+    /// Generation of the plan the robot tracks (0: the initial plan).
+    tracked: u64,
+    /// Requested replans superseded by a newer correction before they were adopted.
+    superseded: u64,
+    /// Whether the last plan adopted from a replan converged (None: none adopted yet).
+    last_converged: Option<bool>,
+    /// The last observe's outcome.
+    last_observation: Observation,
+    /// What happened, for logs and plots.
+    history: History,
+    // Scratch of one tick, sized once so that a tick allocates nothing (tests/alloc.rs).
+    tracked_plan: Vec<f64>,
+    rates: Vec<f64>,
+    deformed: Vec<f64>,
+    shape: Vec<f64>,
+    ones: Vec<f64>,
+    phi_r: Vec<f64>,
+    phi_h: Vec<f64>,
+    delta_phi: Vec<f64>,
+    jacobian: Vec<f64>,
+    sensitivity: Vec<f64>,
+    relevance: Vec<f64>,
+    u_h: Vec<f64>,
+}
+
+impl Learner {
+    /// Plans the initial trajectory for `weights` from `start` to `goal` (cold start), and with a
+    /// replan worker (`params.replan_latency`) starts its thread.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        params: LearnerParams,
+        mut features: FeatureSet,
+        deformation: Deformation,
+        update: WeightUpdate,
+        detector: InteractionDetector,
+        mut optimizer: TrajectoryOptimizer,
+        weights: &[f64],
+        start: &[f64],
+        goal: &[f64],
+    ) -> Result<Self> {
+        let k = features.len();
+        let n = features.model().nq();
+        if update.len() != k {
+            return Err(PhriError::invalid(
+                "update",
+                format!("must have one step per feature ({k} features), got {} steps", update.len()),
+            ));
+        }
+        if detector.thresholds().len() != n {
+            return Err(PhriError::invalid(
+                "detector",
+                format!("must have one threshold per joint ({n} joints), got {}", detector.thresholds().len()),
+            ));
+        }
+        check_params(&params)?;
+        let speed_limits = speed_limits(&features, params.transition_speed)?;
+        check_vector("weights", weights, k)?;
+        let mut weights = weights.to_vec();
+        update.clip(&mut weights);
+        let m = optimizer.waypoints();
+        let full_cap = optimizer.params().max_iterations;
+        let mut levels = optimizer.plan_levels();
+        let info = optimizer.solve_levels(&mut features, &weights, start, goal, None, &mut levels)?;
+        if !info.feasible {
+            return Err(PhriError::Planning {
+                reason: format!("the initial plan is not safe to track: {}", infeasibility(&info, &optimizer)),
+            });
+        }
+        let plan0 = levels.plan().to_vec();
+        let seeds = Seeds::plan(params.seeds, &update, &weights, &mut features, &mut optimizer, start, goal)?;
+        if params.replan_iterations > 0 {
+            // The initial plan converged above; replans keep to the per-tick budget.
+            optimizer.set_max_iterations(params.replan_iterations.min(full_cap))?;
+        }
+        let plan = TimedTrajectory::new(plan0.clone(), n, params.duration, params.interpolation)?;
+        let planner = Planner::new(features.clone(), optimizer, start, goal, seeds, levels);
+        let replanner = if params.replan_latency.uses_worker() {
+            Replanner::Worker(ReplanWorker::spawn(planner, k)?)
+        } else {
+            Replanner::Inline(Box::new(planner))
+        };
+        let history = History { interactions: Vec::new(), plans: vec![(0.0, plan0)], rejected: Vec::new() };
+        Ok(Learner {
+            features,
+            deformation,
+            update,
+            detector,
+            replanner,
+            initial_weights: weights.clone(),
+            weights,
+            initial_plan: plan.clone(),
+            plan,
+            next_sample: 0.0,
+            last_t: None,
+            speed_limits,
+            replan_pending: false,
+            pending_since: 0.0,
+            pending: None,
+            tracked: 0,
+            superseded: 0,
+            last_converged: None,
+            last_observation: Observation::default(),
+            tracked_plan: vec![0.0; m * n],
+            rates: vec![0.0; 2 * n],
+            deformed: vec![0.0; m * n],
+            shape: vec![0.0; m * n],
+            ones: vec![1.0; n],
+            phi_r: vec![0.0; k],
+            phi_h: vec![0.0; k],
+            delta_phi: vec![0.0; k],
+            jacobian: vec![0.0; k * m * n],
+            sensitivity: vec![0.0; k * n],
+            relevance: vec![0.0; k],
+            u_h: vec![0.0; n],
+            history,
+            params,
+        })
+    }
+
+    pub fn params(&self) -> &LearnerParams {
+        &self.params
+    }
+
+    /// Current weights w (cost form).
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+
+    /// Current plan ξ_R, N × n row-major.
+    pub fn plan(&self) -> &TimedTrajectory {
+        &self.plan
+    }
+
+    /// The control side's features (deformation and ΔΦ); a worker replans with its own copy.
+    pub fn features(&mut self) -> &mut FeatureSet {
+        &mut self.features
+    }
+
+    pub fn history(&self) -> &History {
+        &self.history
+    }
+
+    /// Whether a replan is under way: inline, one cut short by the per-tick budget is still
+    /// converging; with a worker, one was requested and is not yet adopted or rejected.
+    pub fn replan_pending(&self) -> bool {
+        self.replan_running_since().is_some()
+    }
+
+    /// Time [s] of the correction whose replan is under way (requested and not yet adopted or
+    /// rejected; inline, a budgeted replan still converging), or None. A watchdog compares it
+    /// with the clock to see a stalled worker.
+    pub fn replan_running_since(&self) -> Option<f64> {
+        match (&self.pending, self.replan_pending) {
+            (Some(p), _) => Some(p.t),
+            (None, true) => Some(self.pending_since),
+            (None, false) => None,
+        }
+    }
+
+    /// Requested replans that a newer correction superseded before they were adopted (since
+    /// construction or `reset`).
+    pub fn superseded_replans(&self) -> u64 {
+        self.superseded
+    }
+
+    /// Whether the optimiser converged for the last plan adopted from a replan (None: none yet).
+    pub fn last_replan_converged(&self) -> Option<bool> {
+        self.last_converged
+    }
+
+    /// What the last `observe` did.
+    pub fn last_observation(&self) -> Observation {
+        self.last_observation
+    }
+
+    /// The reference (q_R [rad], q̇_R [rad/s], q̈_R [rad/s²]) at time `t` [s]; allocates nothing.
+    #[inline]
+    pub fn reference(&self, t: f64, q: &mut [f64], qd: &mut [f64], qdd: &mut [f64]) {
+        self.plan.sample(t, q, qd, qdd);
+    }
+
+    /// Back to t = 0 with the initial plan and weights and an empty record (the initial plan
+    /// only), as constructed: a replan under way is cancelled, the next `observe` may start again
+    /// from t = 0. Seeds are kept.
+    pub fn reset(&mut self) {
+        match &mut self.replanner {
+            Replanner::Inline(planner) => planner.restart(),
+            Replanner::Worker(worker) => worker.cancel(),
+        }
+        self.weights.clone_from(&self.initial_weights);
+        self.plan.clone_from(&self.initial_plan);
+        self.next_sample = 0.0;
+        self.last_t = None;
+        self.replan_pending = false;
+        self.pending = None;
+        self.tracked = 0;
+        self.superseded = 0;
+        self.last_converged = None;
+        self.last_observation = Observation::default();
+        self.history.interactions.clear();
+        self.history.rejected.clear();
+        self.history.plans.truncate(1);
+    }
+
+    /// Testing only (fault injection): the worker's next replan first stalls for `seconds` [s]
+    /// (at most [`MAX_DEBUG_STALL`]), as a worker held up by the machine would. Needs a worker.
+    pub fn debug_stall_worker(&self, seconds: f64) -> Result<()> {
+        if !(seconds.is_finite() && (0.0..=MAX_DEBUG_STALL).contains(&seconds)) {
+            return Err(PhriError::invalid("seconds", format!("must be in [0, {MAX_DEBUG_STALL}] s, got {seconds}")));
+        }
+        self.worker("debug_stall_worker")?.stall(Duration::from_secs_f64(seconds));
+        Ok(())
+    }
+
+    /// Testing only (fault injection): the worker's next replan panics; the next `observe` after
+    /// it reports a [`PhriError::ReplanWorker`]. Needs a worker.
+    pub fn debug_panic_worker(&self) -> Result<()> {
+        self.worker("debug_panic_worker")?.panic_next();
+        Ok(())
+    }
+
+    fn worker(&self, what: &str) -> Result<&ReplanWorker> {
+        match &self.replanner {
+            Replanner::Worker(w) => Ok(w),
+            Replanner::Inline(_) => Err(PhriError::invalid(
+                what,
+                "needs a replan worker (replan_latency > 0, or the wall clock); this learner replans inline",
+            )),
+        }
+    }
+
+    /// One tick: adopt a replan the worker has finished (if due), then at each sample instant
+    /// read the measured joint torque of the person `tau_measured` [N·m] and, on an interaction,
+    /// deform → update → replan (inline) or hand the replan to the worker. Between samples it
+    /// returns at once. `t` [s] lies in [0, duration + [`TIME_SLACK`]] and never goes back (see
+    /// `reset`); a refused `t` or torque leaves the learner as it was. No allocation unless an
+    /// interaction is recorded.
+    pub fn observe(&mut self, t: f64, tau_measured: &[f64]) -> Result<Observation> {
+        self.check_time(t)?;
+        check_vector("tau_measured", tau_measured, self.u_h.len())?;
+        let mut obs = Observation::default();
+        // The reference the controller used last: a plan adopted now blends in from it.
+        let anchor = self.last_t.unwrap_or(t);
+        self.last_t = Some(t);
+        self.last_observation = obs;
+        if self.pending.is_some() {
+            self.collect(t, anchor, &mut obs)?;
+        }
+        // Sample instants lie on the grid k·period; a tick within 10⁻⁶ periods of one counts as on it
+        // (tick times carry rounding). Missed instants are not replayed.
+        let position = t / self.params.sample_period + 1e-6;
+        if position < self.next_sample {
+            self.continue_budgeted(t, &mut obs)?;
+            self.last_observation = obs;
+            return Ok(obs);
+        }
+        self.next_sample = position.floor() + 1.0;
+        obs.sampled = true;
+        obs.interacted = self.detector.detect(tau_measured, &mut self.u_h)?;
+        if !obs.interacted {
+            self.continue_budgeted(t, &mut obs)?;
+            self.last_observation = obs;
+            return Ok(obs);
+        }
+        let mut record = Interaction {
+            t,
+            u_h: self.u_h.clone(),
+            delta_phi: Vec::new(),
+            weights: self.weights.clone(),
+            moved: 0,
+            update: None,
+            replan: None,
+        };
+        if self.params.learning {
+            if self.learn(t, &mut record)? {
+                match self.replanner {
+                    Replanner::Inline(_) => {
+                        let (info, adopted) = self.replan_inline(t)?;
+                        record.replan = Some(info);
+                        obs.replanned = true;
+                        obs.adopted = adopted;
+                    }
+                    Replanner::Worker(_) => self.request(t),
+                }
+            }
+        } else {
+            self.continue_budgeted(t, &mut obs)?;
+        }
+        self.history.interactions.push(record);
+        self.last_observation = obs;
+        Ok(obs)
+    }
+
+    /// `t` is finite, within the task and not before the previous `observe`.
+    fn check_time(&self, t: f64) -> Result<()> {
+        check_finite("t", &[t])?;
+        let end = self.params.duration + TIME_SLACK;
+        if !(0.0..=end).contains(&t) {
+            return Err(PhriError::invalid(
+                "t",
+                format!("must be a time within the task, in [0, {end}] s (duration + {TIME_SLACK} s), got {t} (in seconds?)"),
+            ));
+        }
+        if let Some(last) = self.last_t {
+            if t < last {
+                return Err(PhriError::invalid(
+                    "t",
+                    format!("must not go back in time: got {t} s after an observe at {last} s (reset() starts the task again)"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Inline with a budget: the unfinished replan goes on.
+    fn continue_budgeted(&mut self, t: f64, obs: &mut Observation) -> Result<()> {
+        if self.replan_pending {
+            let (_, adopted) = self.replan_inline(t)?;
+            obs.replanned = true;
+            obs.adopted = adopted;
+        }
+        Ok(())
+    }
+
+    /// ξ_R as the robot tracks it now, at the plan's waypoint times, into `tracked_plan`: the
+    /// plan's waypoints, or while a switch to it is still blending, the blended reference.
+    fn track(&mut self) {
+        let n = self.plan.dof();
+        if self.plan.blend_end() == 0.0 {
+            self.tracked_plan.copy_from_slice(self.plan.waypoints());
+            return;
+        }
+        let dt = self.plan.dt();
+        let (qd, qdd) = self.rates.split_at_mut(n);
+        for (i, q) in self.tracked_plan.chunks_exact_mut(n).enumerate() {
+            self.plan.sample(i as f64 * dt, q, qd, qdd);
+        }
+    }
+
+    /// Deforms the tracked plan by the push and updates the weights; returns whether it did
+    /// (false: the push was too close to the goal to deform anything).
+    fn learn(&mut self, t: f64, record: &mut Interaction) -> Result<bool> {
+        let n = self.plan.dof();
+        let index = self.plan.index_at(t);
+        // The push deforms the trajectory the arm is following (Algorithm 1's ξ_R^t).
+        self.track();
+        self.deformed.copy_from_slice(&self.tracked_plan);
+        record.moved = self.deformation.deform_in_place(&mut self.deformed, n, index, &self.u_h)?;
+        if record.moved == 0 {
+            return Ok(false);
+        }
+        self.features.phi(&self.tracked_plan, &mut self.phi_r)?;
+        self.features.phi(&self.deformed, &mut self.phi_h)?;
+        for k in 0..self.delta_phi.len() {
+            self.delta_phi[k] = self.phi_h[k] - self.phi_r[k];
+        }
+        if self.delta_phi.iter().any(|v| !v.is_finite()) {
+            return Err(PhriError::invalid(
+                "tau_measured",
+                "is so large that the deformed trajectory's features overflow (non-finite)",
+            ));
+        }
+        let relevance = if self.update.params().rule == UpdateRule::Confidence {
+            self.compute_relevance(index)?;
+            Some(&self.relevance[..])
+        } else {
+            None
+        };
+        let info = self.update.apply(&mut self.weights, &self.delta_phi, relevance)?;
+        record.delta_phi = self.delta_phi.clone();
+        record.weights = self.weights.clone();
+        record.update = Some(info);
+        Ok(true)
+    }
+
+    /// Inline: replans over [0, T] from the original start, warm-started from the current plan
+    /// and its coarse plans (or the nearest seed's, if its plan costs less at the new weights),
+    /// within the per-tick budget, and switches to the result at `t` if it is feasible; otherwise
+    /// the robot keeps tracking its plan (the last feasible one) and the history records why.
+    /// Returns the solve's info and whether the plan was adopted.
+    fn replan_inline(&mut self, t: f64) -> Result<(TrajoptInfo, bool)> {
+        let Replanner::Inline(planner) = &mut self.replanner else {
+            return Err(PhriError::invalid("replan_latency", "replans on its worker, not inline"));
+        };
+        let info = planner.solve(&self.weights)?;
+        let pending = self.params.replan_iterations > 0 && !info.converged;
+        if pending && !self.replan_pending {
+            self.pending_since = t;
+        }
+        if !info.feasible {
+            if pending {
+                // A budgeted replan goes on from where it stopped; the arm does not follow it.
+                planner.keep_going();
+            } else {
+                // Rejected: later replans start again from the plan the robot tracks.
+                planner.reject();
+                self.history.rejected.push(RejectedPlan { t, reason: planner.infeasibility(&info) });
+            }
+            self.replan_pending = pending;
+            return Ok((info, false));
+        }
+        // Switch first: if that fails, the learner keeps the plan it is following.
+        self.plan.switch_to(planner.replanned.plan(), t, &self.speed_limits)?;
+        planner.adopt();
+        self.replan_pending = pending;
+        self.last_converged = Some(info.converged);
+        self.history.plans.push((t, planner.levels.plan().to_vec()));
+        Ok((info, true))
+    }
+
+    /// Worker: hands the replan for the updated weights to the worker (superseding one still
+    /// under way). The history makes room for its outcome now, so that adopting it allocates
+    /// nothing.
+    fn request(&mut self, t: f64) {
+        let Replanner::Worker(worker) = &mut self.replanner else { return };
+        let block = self.params.replan_latency != ReplanLatency::WallClock;
+        let generation = worker.request(&self.weights, self.tracked, block);
+        if self.pending.is_some() {
+            self.superseded += 1;
+        }
+        self.pending = Some(Pending { generation, t, record: self.history.interactions.len() });
+        self.history.plans.reserve(1);
+        self.history.rejected.reserve(1);
+    }
+
+    /// Worker: adopts (or rejects) the pending replan if it is due (simulated latency: waiting for
+    /// the worker if need be) or ready (wall clock), blending in from the reference at `anchor`.
+    fn collect(&mut self, t: f64, anchor: f64, obs: &mut Observation) -> Result<()> {
+        let (Some(pending), Replanner::Worker(worker)) = (self.pending, &mut self.replanner) else { return Ok(()) };
+        let outcome = match self.params.replan_latency {
+            ReplanLatency::Fixed(latency) => {
+                // Due at t_request + L, with the sample grid's rounding slack.
+                if t + 1e-6 * self.params.sample_period < pending.t + latency {
+                    return Ok(());
+                }
+                worker.collect(pending.generation, true)
+            }
+            ReplanLatency::WallClock => worker.collect(pending.generation, false),
+        };
+        let Some(outcome) = outcome else { return Ok(()) };
+        self.pending = None;
+        obs.replanned = true;
+        match outcome {
+            Outcome::Feasible { plan, info } => {
+                // If the switch fails, the learner keeps the plan it is following.
+                if let Err(e) = self.plan.switch_to(&plan, anchor, &self.speed_limits) {
+                    self.history.rejected.push(RejectedPlan { t: anchor, reason: e.to_string() });
+                    return Err(e);
+                }
+                self.tracked = pending.generation;
+                self.last_converged = Some(info.converged);
+                self.history.interactions[pending.record].replan = Some(info);
+                self.history.plans.push((anchor, plan));
+                obs.adopted = true;
+            }
+            Outcome::Infeasible { info, reason } => {
+                self.history.interactions[pending.record].replan = Some(info);
+                self.history.rejected.push(RejectedPlan { t: anchor, reason });
+            }
+            Outcome::Failed(e) => {
+                self.history.rejected.push(RejectedPlan { t: anchor, reason: e.to_string() });
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+
+    /// Linearised sensitivity S = ∂ΔΦ/∂u_H (K × n) at the current plan, then relevance.
+    fn compute_relevance(&mut self, index: usize) -> Result<()> {
+        let (n, m, k_len) = (self.plan.dof(), self.plan.len(), self.features.len());
+        // Unit torque on every joint moves joint j of waypoint i by shape[i][j] = μ·H_i.
+        self.shape.fill(0.0);
+        self.deformation.deform_in_place(&mut self.shape, n, index, &self.ones)?;
+        self.features.phi_gradient(&self.tracked_plan, &mut self.phi_r, &mut self.jacobian)?;
+        self.sensitivity.fill(0.0);
+        for k in 0..k_len {
+            for i in 0..m {
+                for j in 0..n {
+                    self.sensitivity[k * n + j] += self.jacobian[(k * m + i) * n + j] * self.shape[i * n + j];
+                }
+            }
+        }
+        relevance(&self.delta_phi, &self.sensitivity, &self.u_h, &mut self.relevance)
+    }
+}
+
+/// Checks the timing and mode settings.
+fn check_params(params: &LearnerParams) -> Result<()> {
+    if !(params.sample_period.is_finite() && params.sample_period > 0.0) {
+        return Err(PhriError::invalid("sample_period", format!("must be a finite time > 0 s, got {}", params.sample_period)));
+    }
+    let ts = params.transition_speed;
+    if !(ts == 0.0 || (MIN_TRANSITION_SPEED..=1.0).contains(&ts)) {
+        return Err(PhriError::invalid(
+            "transition_speed",
+            format!(
+                "must be a finite fraction of the velocity limits: 0 (switch at once) or in [{MIN_TRANSITION_SPEED}, 1], got {ts}"
+            ),
+        ));
+    }
+    match params.replan_latency {
+        ReplanLatency::Fixed(latency) => {
+            if !(latency.is_finite() && latency >= 0.0 && latency <= params.duration) {
+                return Err(PhriError::invalid(
+                    "replan_latency",
+                    format!(
+                        "must be a time in [0, duration = {}] s (0: inline), or None for the wall clock, got {latency}",
+                        params.duration
+                    ),
+                ));
+            }
+        }
+        ReplanLatency::WallClock => {}
+    }
+    if params.replan_latency.uses_worker() && params.replan_iterations > 0 {
+        return Err(PhriError::invalid(
+            "replan_iterations",
+            format!(
+                "budgets inline replans only (replan_latency = 0); a replan worker replans to convergence, got {}",
+                params.replan_iterations
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// transition_speed × the model's velocity limits [rad/s] (empty for an instant switch).
+fn speed_limits(features: &FeatureSet, transition_speed: f64) -> Result<Vec<f64>> {
+    if transition_speed == 0.0 {
+        return Ok(Vec::new());
+    }
+    let limits: Vec<f64> = features.model().velocity_limits().iter().map(|v| v * transition_speed).collect();
+    if let Some((j, v)) = limits.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= MIN_SPEED_LIMIT)) {
+        return Err(PhriError::invalid(
+            "transition_speed",
+            format!(
+                "gives joint {j} a blend speed limit of {v} rad/s, outside [{MIN_SPEED_LIMIT}, ∞) (its velocity limit times \
+                 transition_speed); use 0 to switch plans at once"
+            ),
+        ));
+    }
+    Ok(limits)
+}

@@ -19,7 +19,7 @@ from phri.config import STUDY_TASKS, Task, load_task
 from phri.exceptions import InvalidParameterError
 from phri.sim import STRATEGIES, EpisodeConfig, EpisodeResult, ParticipantParams, Planner, World, WorldParams
 
-__all__ = ["fresh_folder", "frame_times", "run_demo"]
+__all__ = ["episode_figures", "fresh_folder", "frame_times", "run_demo"]
 
 #: Frames rendered per episode, evenly spaced from the start to the end of the task.
 FRAMES = 4
@@ -56,8 +56,11 @@ class DemoResult:
     seconds: float
 
 
-def _plot(folder: Path, task: Task, results: dict[str, EpisodeResult]) -> list[Path]:
-    """The task's figures, drawn from the episodes' results in memory (their `log_arrays`)."""
+def episode_figures(folder: Path, task: Task, results: dict[str, EpisodeResult]) -> list[Path]:
+    """The figures of `task`'s episodes, one per strategy in `results` (one or both), drawn from
+    their results in memory (their `log_arrays`): ``force_<task>.png``, ``path_<task>.png`` and
+    ``weights_<task>.png`` (the learning episode's weight, else the only episode's) in `folder`.
+    The demo and ``phri run`` draw these."""
     logs = {strategy: r.log_arrays for strategy, r in results.items()}
     # Fig. 1: the person's effort over time.
     force = plots.plot_effort(
@@ -71,7 +74,8 @@ def _plot(folder: Path, task: Task, results: dict[str, EpisodeResult]) -> list[P
         folder / f"path_{task.name}.png", (t, desired), executed, plots.DEMO_PATHS, title=task.name
     )
     # The learned weight of the task's feature over time.
-    learned, true = logs["learning"], float(task.vector("true")[task.task_index])
+    learned = logs["learning"] if "learning" in logs else next(iter(logs.values()))
+    true = float(task.vector("true")[task.task_index])
     weights = plots.plot_weight(
         folder / f"weights_{task.name}.png", task.name, learned["weights_t"],
         learned["weights"][:, task.task_index], true, task.duration,
@@ -122,7 +126,7 @@ def run_demo(
                     f"{r.cost:>8.3f} {r.desired_cost:>8.3f} {r.final_weights[task.task_index]:>7.3f} "
                     f"{r.min_clearance:>6.3f} {r.wall_contact_time:>6.2f} {r.wall_time:>6.2f}"
                 )
-            _plot(folder, task, per_task)
+            episode_figures(folder, task, per_task)
     seconds = time.perf_counter() - began
     print(
         f"\nwrote {folder}/summary.csv, figures force_*.png path_*.png weights_*.png, frames/, logs/ "

@@ -76,6 +76,8 @@ def test_the_fr3_runs_with_its_descriptions_gains_and_the_jaco2_with_the_cores()
     np.testing.assert_array_equal(jaco2.stiffness, default.stiffness)
     np.testing.assert_array_equal(jaco2.damping, default.damping)
     assert load("jaco2").stiffness is None
+    # The FR3 caps the blend into a new plan at 0.25 of its rated speeds; the JACO2 does not.
+    assert load("fr3").transition_speed == 0.25 and load("jaco2").transition_speed is None
     # What builds an episode's controller reads them.
     episode = FrankaEpisode("127.0.18.1", short_table(1.0))
     np.testing.assert_array_equal(episode.controls.controller.stiffness, fr3.stiffness)
@@ -111,6 +113,20 @@ def test_a_bad_impedance_table_is_a_clear_error(tmp_path: Path, table: str, mess
     (tmp_path / "robot.toml").write_text(text.replace('urdf = "fr3.urdf"', f'urdf = "{source / "fr3.urdf"}"'))
     with pytest.raises(ConfigError, match=message):
         impedance_controller(FR3, tmp_path / "robot.toml")
+
+
+@pytest.mark.parametrize("value", ["0.0", "1.5", '"fast"'])
+def test_a_bad_transition_speed_is_a_clear_error(tmp_path: Path, value: str) -> None:
+    from phri.robots import load
+
+    source = Path(str(resources.files("phri").joinpath("robots", "fr3")))
+    text = (source / "robot.toml").read_text()
+    assert "transition_speed = 0.25\n" in text
+    text = text.replace("transition_speed = 0.25\n", f"transition_speed = {value}\n")
+    (tmp_path / "robot.toml").write_text(text.replace('urdf = "fr3.urdf"', f'urdf = "{source / "fr3.urdf"}"'))
+    message = r"key 'interaction.transition_speed' must be a fraction in \(0, 1\]"
+    with pytest.raises(ConfigError, match=message):
+        load(tmp_path / "robot.toml")
 
 
 def test_the_move_is_minimum_jerk_and_peaks_at_its_speed() -> None:
@@ -295,9 +311,10 @@ def test_late_ticks_are_survived_and_counted_on_the_robots_clock(faults_server: 
     outcome = episode.run(on_tick=inject_at_start(faults_server, "late:20@0.5", "late:12@1.0"))
     assert outcome.error is None and outcome.stop is None
     log = outcome.result.log_arrays
-    assert outcome.late_ticks >= 2 and outcome.max_tick_gap == pytest.approx(0.020, abs=1.5e-3)
-    gaps = np.diff(log["t"])  # the log's rows: a row for each 10 ms of the robot's time but the gaps
-    assert gaps.max() >= 0.02 and log["t"][-1] >= task.duration - 0.02
+    # The injected gaps (20 and 12 ms; this machine's own late ticks may add to them) on the robot's
+    # clock, and the episode ran on to its end.
+    assert outcome.late_ticks >= 2 and outcome.max_tick_gap >= 0.0195
+    assert log["t"][-1] >= task.duration - 0.02
     check_within_limits(log)
 
 
@@ -447,6 +464,12 @@ def test_an_address_where_nothing_answers_is_a_clear_error_within_the_timeout(
     err = capsys.readouterr().err
     assert err.startswith("phri run: error: host '127.0.18.6': no robot answers on port 1337 within 1 s")
     assert time.monotonic() - began < 30
+    # A bad option is refused before anything connects.
+    assert main([*arguments, "--host", "127.0.18.6", "--move-speed", "2"]) == 2
+    assert (
+        "speed must be a fraction of the rated joint velocities in (0, 0.5], got 2.0"
+        in capsys.readouterr().err
+    )
     assert not out.exists(), "nothing is written when nothing ran"
 
 

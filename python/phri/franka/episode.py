@@ -31,7 +31,15 @@ from phri.control import LATE_AFTER, LoopResult, RobotState, StopEvent
 from phri.control.loop import TickHook
 from phri.exceptions import ConfigError
 from phri.franka.backend import FrankaBackend
-from phri.franka.move import MAX_MOVE, MOVE_SPEED, START_TOLERANCE, JointMove, move_to, plan_move
+from phri.franka.move import (
+    MAX_MOVE,
+    MOVE_SPEED,
+    START_TOLERANCE,
+    JointMove,
+    check_move_options,
+    move_to,
+    plan_move,
+)
 from phri.sim.episode import (
     EpisodeConfig,
     EpisodeResult,
@@ -136,6 +144,7 @@ class FrankaEpisode:
         max_move: float = MAX_MOVE,
     ) -> None:
         check_task_robot(task, "fr3")
+        check_move_options(move_speed, max_move)  # before anything connects
         self.task = task
         self.config = config or EpisodeConfig()
         self.description = robots.load(task.robot)

@@ -30,6 +30,7 @@ __all__ = [
     "MOVE_SPEED",
     "START_TOLERANCE",
     "JointMove",
+    "check_move_options",
     "move_to",
     "plan_move",
 ]
@@ -91,6 +92,20 @@ class JointMove:
         return out
 
 
+def check_move_options(speed: object, max_move: object) -> None:
+    """InvalidParameterError unless `speed` is a fraction of the rated joint velocities in
+    (0, MAX_MOVE_SPEED] and `max_move` a joint distance in (0, π] rad."""
+    if isinstance(speed, bool) or not (
+        isinstance(speed, int | float) and math.isfinite(speed) and 0 < speed <= MAX_MOVE_SPEED
+    ):
+        raise InvalidParameterError(
+            f"speed must be a fraction of the rated joint velocities in (0, {MAX_MOVE_SPEED:g}], "
+            f"got {speed!r}"
+        )
+    if isinstance(max_move, bool) or not (isinstance(max_move, int | float) and 0 < max_move <= math.pi):
+        raise InvalidParameterError(f"max_move must be a joint distance in (0, pi] rad, got {max_move!r}")
+
+
 def plan_move(
     robot: Robot,
     limits: SafetyLimits,
@@ -114,15 +129,7 @@ def plan_move(
     for name, q in (("q_from", q_from), ("q_to", q_to)):
         if q.shape != (n,) or not np.isfinite(q).all():
             raise InvalidParameterError(f"{name} must be {n} finite joint positions [rad], got {q!r}")
-    if isinstance(speed, bool) or not (
-        isinstance(speed, int | float) and math.isfinite(speed) and 0 < speed <= MAX_MOVE_SPEED
-    ):
-        raise InvalidParameterError(
-            f"speed must be a fraction of the rated joint velocities in (0, {MAX_MOVE_SPEED:g}], "
-            f"got {speed!r}"
-        )
-    if isinstance(max_move, bool) or not (isinstance(max_move, int | float) and 0 < max_move <= math.pi):
-        raise InvalidParameterError(f"max_move must be a joint distance in (0, pi] rad, got {max_move!r}")
+    check_move_options(speed, max_move)
     for name, q in (("the arm", q_from), (what, q_to)):
         outside = (q < limits.position_lower) | (q > limits.position_upper)
         if outside.any():

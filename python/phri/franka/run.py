@@ -73,7 +73,8 @@ def summary_of(outcome: FrankaOutcome, task: Task, strategy: str, host: str) -> 
     summary.update(result.row() if result is not None else {})
     summary["wall_peak_force"] = None if result is None else result.wall_peak_force
     summary["completed"] = outcome.error is None
-    summary["error"] = None if outcome.error is None else str(outcome.error)
+    error = outcome.error
+    summary["error"] = None if error is None else (str(error) or type(error).__name__)
     summary["stop"] = None if stop is None else _stop_record(stop)
     summary["move_duration"] = None if outcome.move is None else outcome.move.total
     summary["ticks"] = outcome.ticks

@@ -36,7 +36,7 @@ DESCRIPTION_KEYS = (
 )  # fmt: skip
 #: The keys of a [safety] table's joint limits (a robot description's, or a task's overrides).
 SAFETY_KEYS = ("position_margin", "velocity_limits", "torque_limits", "torque_rate_limit")
-INTERACTION_KEYS = ("thresholds",)
+INTERACTION_KEYS = ("thresholds", "transition_speed")
 IMPEDANCE_KEYS = ("stiffness", "damping")
 CARRIED_KEYS = ("urdf", "frame")
 #: The carried object whose frame is the description's `cup_frame`.
@@ -125,6 +125,9 @@ class RobotDescription:
     #: The interaction detector's per-joint thresholds [N·m] ([interaction] thresholds; None if
     #: the description gives none).
     thresholds: tuple[float, ...] | None = None
+    #: The fastest blend into a new plan this robot allows, as a fraction of its rated joint
+    #: velocities ([interaction] transition_speed; None: the episode's setting stands).
+    transition_speed: float | None = None
     #: The safety layer's joint limits ([safety]; empty if the description has no such table).
     safety: SafetySpec = SafetySpec()
     #: The impedance law's joint stiffness [N·m/rad] and damping [N·m·s/rad] ([impedance]; None:
@@ -170,11 +173,17 @@ def load(name_or_path: str | Path) -> RobotDescription:
         if not (v > 0).all():
             raise interaction.fail("thresholds", "a list of positive numbers [N·m], one per joint", raw)
         thresholds = tuple(float(x) for x in v)
+    transition_speed = None
+    if "transition_speed" in interaction.table:
+        transition_speed = interaction.number("transition_speed", expected="a fraction in (0, 1]")
+        if not 0 < transition_speed <= 1:
+            raise interaction.fail("transition_speed", "a fraction in (0, 1]", transition_speed)
     safety = read_safety(r.table_of("safety", SAFETY_KEYS))
     stiffness, damping = _gains(r.table_of("impedance", IMPEDANCE_KEYS))
     return RobotDescription(
         source, path.parent / r.string("urdf"), r.string("base"), r.string("tip"), **frames,
-        carried=carried, thresholds=thresholds, safety=safety, stiffness=stiffness, damping=damping,
+        carried=carried, thresholds=thresholds, transition_speed=transition_speed, safety=safety,
+        stiffness=stiffness, damping=damping,
     )  # fmt: skip
 
 

@@ -12,6 +12,7 @@ backend (a Franka over libfranka, :mod:`phri.franka.episode`) uses the same piec
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 import time
@@ -103,7 +104,8 @@ class EpisodeConfig:
     log_rate: float = 100.0
     #: After a replan the reference blends into the new plan with joint speeds of at most this
     #: fraction of the velocity limits; 0 switches at once as the original did (the arm then snaps
-    #: onto the new plan at several times its limits).
+    #: onto the new plan at several times its limits). A robot description's ``[interaction]
+    #: transition_speed`` caps it (the FR3's, whose joints are four times the JACO2's speed).
     transition_speed: float = 0.8
 
     def __post_init__(self) -> None:
@@ -325,8 +327,9 @@ def robot_controls(
     replan_latency: float | None = 0.0,
 ) -> RobotControls:
     """The robot's side of an episode of `task` on `model` (`task.robot`'s description supplies the
-    interaction thresholds, the impedance gains and the safety limits): the planner (made here if
-    `planner` is None), the learner (:func:`make_learner`), the impedance law with the task's scene
+    interaction thresholds, the cap on the blend's speed, the impedance gains and the safety limits):
+    the planner (made here if `planner` is None), the learner (:func:`make_learner`; its blend into a
+    new plan no faster than the description's ``transition_speed``), the impedance law with the task's scene
     (:func:`phri.robots.impedance_controller`) and the safety limits (the robot's ``[safety]``
     tightened by the task's)."""
     for key in ("thresholds", "detector_bias"):
@@ -341,6 +344,9 @@ def robot_controls(
             f"{description.source}: key 'interaction.thresholds' must have one value per joint "
             f"({model.nq}), got {len(thresholds)}"
         )
+    cap = description.transition_speed
+    if cap is not None and config.transition_speed > cap:
+        config = dataclasses.replace(config, transition_speed=cap)
     learner = make_learner(task, planner, config, thresholds, replan_latency=replan_latency)
     # The virtual wall keeps every body clear of the furniture at run time, however the person pushes.
     controller = robots.impedance_controller(model, description, task.scene)

@@ -6,7 +6,7 @@ DEPS   := $(VENV)/.deps-installed
 BUILT  := $(VENV)/.ext-built
 CARGO_SOURCES := $(shell find crates -name '*.rs' -o -name Cargo.toml) Cargo.toml
 
-.PHONY: help dev demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-trajopt-work bench-python bench-episode clean
+.PHONY: help dev wheel docs demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-trajopt-work bench-python bench-episode clean
 
 help:  ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-20s %s\n", $$1, $$2}'
@@ -14,19 +14,37 @@ help:  ## List the targets
 $(PY):
 	python3 -m venv $(VENV)
 
+# Every extra's requirements (tests/test_package.py checks this list against pyproject.toml's extras).
 $(DEPS): pyproject.toml | $(PY)
 	$(PIP) install --quiet --upgrade pip
-	$(PIP) install --quiet "maturin>=1.9,<2" "numpy>=1.24" "pytest>=8" "pybullet>=3.2.6" "scipy>=1.11" \
-		"matplotlib>=3.8" "pandas>=2.1" "pyarrow>=14" "statsmodels>=0.14" "tqdm>=4.66" "ray>=2.9" \
-		"pyyaml>=6" "ruff>=0.6" "mypy>=1.10" \
-		"pylibfranka==0.21.3" "franky-sim==1.0.4"
+	$(PIP) install --quiet "maturin>=1.9,<2" "ziglang>=0.13" "auditwheel>=6" "numpy>=1.24" "pytest>=8" \
+		"pybullet>=3.2.6" "scipy>=1.11" "matplotlib>=3.8" "pandas>=2.1" "pyarrow>=14" "statsmodels>=0.14" \
+		"tqdm>=4.66" "ray>=2.9" "pyyaml>=6" "ruff>=0.6" "mypy>=1.10" \
+		"pylibfranka==0.21.3" "franky-sim==1.0.4" \
+		"mkdocs>=1.6" "mkdocs-material>=9.5" "mkdocstrings-python>=1.16" "mkdocs-jupyter>=0.25" "ipykernel>=6" \
+		"latex2mathml>=3.77"
 	touch $@
 
+# One release build of the extension serves both the editable install in .venv and the wheel in dist/:
+# both link with zig (the ziglang package) against glibc 2.17 (manylinux2014) and build the stable-ABI
+# extension (abi3, CPython >= 3.10; [tool.maturin] features), so cargo reuses the build for the wheel.
+MATURIN_FLAGS := --zig --compatibility manylinux2014
+WITH_ZIG      := PATH="$(abspath $(VENV))/bin:$$PATH"
+
 $(BUILT): $(DEPS) $(CARGO_SOURCES) pyproject.toml
-	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release --quiet
+	rm -f python/phri/_phri.cpython-*.so  # a version-specific build would shadow the abi3 one
+	$(WITH_ZIG) MATURIN_PEP517_ARGS="$(MATURIN_FLAGS)" \
+		$(PIP) install --quiet --no-build-isolation --no-deps --editable .
 	touch $@
 
 dev: $(BUILT)  ## Create .venv, install dependencies, build and install phri (editable)
+
+wheel: $(BUILT)  ## Build the abi3 manylinux2014 wheel into dist/ (reuses the build of `make dev`)
+	rm -rf dist
+	$(WITH_ZIG) $(VENV)/bin/maturin build --quiet --interpreter $(PY) $(MATURIN_FLAGS) --out dist
+
+docs: $(BUILT)  ## Build the documentation site into site/ (strict: any warning fails)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
 
 demo: $(BUILT)  ## Run the main job
 	$(VENV)/bin/phri demo
@@ -34,7 +52,7 @@ demo: $(BUILT)  ## Run the main job
 test-rust:  ## Rust unit, integration and property tests
 	cargo test --workspace
 
-test-python: $(BUILT)  ## pytest (includes the PyBullet comparisons)
+test-python: $(BUILT)  ## pytest (includes the PyBullet comparisons, the docs build and the wheel check)
 	$(PY) -m pytest
 
 test: test-rust test-python  ## Everything CI runs
@@ -42,8 +60,8 @@ test: test-rust test-python  ## Everything CI runs
 lint: $(BUILT)  ## rustfmt, clippy, ruff, mypy, and the stub check
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -- -D warnings
-	$(VENV)/bin/ruff check python tests benches
-	$(VENV)/bin/ruff format --check python tests benches
+	$(VENV)/bin/ruff check python tests benches docs/*.py
+	$(VENV)/bin/ruff format --check python tests benches docs/*.py
 	$(PY) -m mypy python/phri
 	$(PY) -m mypy.stubtest phri._phri --allowlist .stubtest-allowlist
 
@@ -70,4 +88,4 @@ bench-episode: $(BUILT)  ## Time simulated 15 s episodes against real time
 
 clean:
 	cargo clean
-	rm -rf $(VENV)
+	rm -rf $(VENV) dist site python/phri/_phri*.so

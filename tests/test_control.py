@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_sim import shortened  # the study's tasks cut short, as the simulation tests use them
 
 import phri
 from phri.config import TaskSafety, load_task
@@ -181,6 +182,17 @@ def test_the_loop_needs_the_laws_gravity_and_valid_settings() -> None:
         loop_over(FakeArm()).run(np.zeros(6), 1.0)
 
 
+@pytest.mark.parametrize("value", [-1, 2**32, 10**100])
+def test_a_late_ticks_count_out_of_range_names_the_argument(value: int) -> None:
+    # Not PyO3's bare OverflowError ("out of range integral type conversion attempted").
+    match = r"^late_ticks must be an integer in \[0, 4294967295\], got "
+    with pytest.raises(InvalidParameterError, match=match):
+        limits().layer(JACO2, period=PERIOD, gravity_compensated=False, late_ticks=value)
+    if value > 0:  # the loop's own check refuses the rest
+        with pytest.raises(InvalidParameterError, match=match):
+            loop_over(FakeArm(), late_ticks=value)
+
+
 def _bump(joint: int, value: float, attribute: str) -> Callable[[RobotState], None]:
     def change(state: RobotState) -> None:
         getattr(state, attribute)[joint] = value
@@ -316,6 +328,50 @@ def test_a_clock_that_does_not_advance_ends_the_motion() -> None:
     assert len(arm.commands) == 41
 
 
+def _table_learner(duration: float, waypoints: int = 5, **kwargs) -> phri.Learner:
+    """A phri.Learner for the table task cut to `duration` seconds (it refuses times past it), its
+    plan `waypoints` long (a push deforms it with 11 or more: the deformation's window is 5)."""
+    from types import SimpleNamespace
+
+    from phri.sim import Planner
+
+    task = shortened(load_task("table"), duration, waypoints)
+    planner = Planner(task, SimpleNamespace(model=JACO2))  # type: ignore[arg-type]
+    update = phri.WeightUpdate(task.vector("step"), task.vector("lower"), task.vector("upper"))
+    return phri.Learner(
+        planner.features, phri.Deformation(), update, phri.InteractionDetector(), planner.optimizer,
+        task.vector("initial"), task.start, task.goal, duration=duration, **kwargs,
+    )  # fmt: skip
+
+
+def test_a_failed_replan_worker_does_not_end_the_motion(caplog) -> None:
+    # The learner's contract: a failed worker (here a panic, a bug in phri) is a ReplanWorkerError
+    # once and the arm keeps the plan it tracks. The loop goes on with it, counting the failure,
+    # rather than end the motion abruptly without a hold or a StopEvent.
+    learner = _table_learner(1.0, 11, replan_latency=0.01)
+    plan = learner.plan
+    learner._debug_panic_worker()
+    push = np.array([0.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # beyond joint 2's 8 N·m threshold
+    arm = FakeArm(script=lambda k, state: state.tau_ext.__setitem__(slice(None), push if k == 300 else 0.0))
+    result = loop_over(arm, learner).run(START, 1.0)
+    assert result.stop is None and result.ticks == 1001 and arm.stops == 1
+    assert result.replan_failures == 1
+    assert "panicked" in caplog.text
+    assert len(learner.history()) == 1 and len(learner.history().rejected) == 1
+    np.testing.assert_array_equal(learner.plan, plan)
+
+
+def test_a_late_last_tick_past_the_tasks_end_still_finishes_the_motion() -> None:
+    # One late tick (50 ms: the robot's clock jumps) at the motion's end puts the last tick past
+    # the task's end; single late ticks do not stop the arm, and the learner must not be handed a
+    # time it refuses (past duration + Learner.TIME_SLACK), which would end the motion with an error.
+    duration = 0.2
+    arm = FakeArm(script=_clock(lambda k: k * PERIOD if k < 195 else (k + 50) * PERIOD))
+    result = loop_over(arm, _table_learner(duration)).run(START, duration)
+    assert result.stop is None and result.ticks == 196 and len(arm.commands) == 196
+    assert arm.stops == 1
+
+
 def test_torques_beyond_the_limits_are_clipped_and_counted() -> None:
     # A reference 0.5 rad away asks joint 2 for 150 N·m of spring torque.
     class Far(StillLearner):
@@ -351,6 +407,25 @@ def test_the_commands_rate_is_limited_and_counted() -> None:
             assert steps.max() <= rate * PERIOD + 1e-9
         else:
             assert steps.max() > 10.0
+
+
+@pytest.mark.parametrize("gravity_compensated", [False, True])
+def test_the_first_command_is_rate_limited_from_what_the_arm_holds_at_rest(gravity_compensated: bool) -> None:
+    # A reference 0.5 rad away on joint 2 asks for a large spring torque at once. The first command
+    # may move at most one rate step from what the arm applies at rest where it starts: nothing for
+    # an arm that compensates gravity, g(q) for one that does not (a lab's own arm, not only PyBullet).
+    class Far(StillLearner):
+        def reference(self, t, *, out):
+            super().reference(t, out=out)
+            out[0][1] += 0.5
+            return out
+
+    rate = 100.0  # N·m/s: 0.1 N·m per tick
+    arm = FakeArm(gravity_compensated=gravity_compensated)
+    result = loop_over(arm, Far(), limits=limits(torque_rate=np.full(7, rate))).run(START, 0.01)
+    at_rest = np.zeros(7) if gravity_compensated else JACO2.gravity(START)
+    assert np.abs(arm.commands[0] - at_rest).max() <= rate * PERIOD + 1e-9
+    assert result.rate_clips[1] == len(arm.commands)
 
 
 def test_any_other_error_ends_the_motion_is_raised_and_keeps_the_log_and_the_collector() -> None:
@@ -482,12 +557,6 @@ def test_bad_task_safety_tables_are_clear_errors(tmp_path, table: str, match: st
 
 
 # -- the PyBullet backend, in short real episodes ----------------------------------------------
-
-
-def shortened(task: phri.Task, duration: float, waypoints: int) -> phri.Task:
-    """`task` cut to its first `duration` seconds (the goal moved towards the start in proportion)."""
-    goal = task.start + (task.goal - task.start) * duration / task.duration
-    return phri.Task(**{**task.__dict__, "duration": duration, "waypoints": waypoints, "goal": goal})
 
 
 @pytest.fixture(scope="module")

@@ -293,7 +293,7 @@ def test_a_fault_of_the_robot_stops_the_episode_with_a_complete_log(
     log = outcome.result.log_arrays
     assert log["t"][-1] <= stop.t and log["t"][-1] >= 0.28
     assert list(log["stop_reason"]) == ["robot_fault"] and np.isfinite(log["q"]).all()
-    written = write_run(tmp_path, task, "learning", faults_server.host, outcome)
+    written = write_run(tmp_path, episode, outcome)
     with np.load(written.log) as saved:
         assert str(saved["stop_message"][0]) == stop.message and len(saved["t"]) == len(log["t"])
     summary = json.loads((tmp_path / "summary.json").read_text())
@@ -379,7 +379,7 @@ def test_the_server_killed_mid_episode_is_a_lost_connection_with_a_complete_log(
     assert stop is not None and stop.reason == "connection_lost" and "stopped answering" in stop.message
     log = outcome.result.log_arrays
     assert 0.29 <= log["t"][-1] <= stop.t + 1e-9 and list(log["stop_reason"]) == ["connection_lost"]
-    written = write_run(tmp_path, task, "learning", "127.0.18.4", outcome)
+    written = write_run(tmp_path, episode, outcome)
     assert written.log.is_file() and json.loads((tmp_path / "summary.json").read_text())["stop"][
         "reason"
     ] == ("connection_lost")

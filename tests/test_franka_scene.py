@@ -9,6 +9,7 @@ measured on the robot's clock (RobotState.t), never on the wall clock.
 
 from __future__ import annotations
 
+import collections
 import os
 import signal
 import subprocess
@@ -323,6 +324,10 @@ def test_faults_are_parsed_and_refused_clearly() -> None:
         "drop@0",
     ):
         assert Fault.parse(spec).spec() == spec
+    # spec() is what SimServer hands its child: a time keeps every digit (not six, which moved
+    # this one to another tick).
+    assert Fault.parse("nan:dq@1234.5678").spec() == "nan:dq@1234.5678"
+    assert Fault.parse("stall:0.1234567@0.1").spec() == "stall:0.1234567@0.1"
     for spec, message in [
         ("reflex:joint_wobble", "unknown libfranka error joint_wobble"),
         ("nan:qdd", "nan takes one of q, dq, tau_ext"),
@@ -393,6 +398,71 @@ def test_the_server_process_is_gone_after_its_block_even_on_an_error() -> None:
         os.kill(pid, 0)
     with pytest.raises(ConnectionLostError, match="not running"):
         server.inject("drop")
+
+
+def test_the_server_stops_when_its_control_channel_closes() -> None:
+    """A SimServer's process killed without leaving its block (kill -9, a crash) closes the child's
+    stdin, the control channel: the child stops rather than serve on, orphaned."""
+    with SimServer("127.0.15.6", realtime=REALTIME) as server:
+        process = server.process
+        assert process is not None and process.stdin is not None
+        process.stdin.close()
+        assert process.wait(timeout=30) == 0
+        deadline = time.monotonic() + 5  # the output is read in a thread
+        while not any("control channel closed" in line for line in server.lines):
+            assert time.monotonic() < deadline, list(server.lines)
+            time.sleep(0.01)
+
+
+def test_a_server_that_fails_to_start_is_killed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """__exit__ does not run when __enter__ raises (here Ctrl-C while it waits for the port):
+    __enter__ itself kills the child."""
+    import phri.franka.sim_server as sim_server
+
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sim_server.socket, "create_connection", interrupted)
+    server = SimServer("127.0.15.7", realtime=REALTIME)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            server.__enter__()
+        assert server.process is None, "the child was left running"
+    finally:
+        server.stop()
+
+
+def test_stopping_a_server_while_its_output_is_read_leaves_no_thread_error(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """stop() closed the child's output under the thread reading it, which then failed (an
+    unhandled thread exception: an error of whichever test pytest noticed it in); a child that
+    writes much (--log-protocol, many faults) met it. A stand-in child writes without end, and
+    keeping each line takes a while, so that the reader is always busy when stop() comes."""
+    import phri.franka.sim_server as sim_server
+
+    chatty = f"print({READY!r} + ' 127.0.15.8', flush=True)\nwhile True:\n    print('x' * 200, flush=True)\n"
+    monkeypatch.setattr(SimServer, "command", lambda self: [sys.executable, "-c", chatty])
+
+    class Answered:
+        def close(self) -> None:
+            pass
+
+    monkeypatch.setattr(sim_server.socket, "create_connection", lambda *args, **kwargs: Answered())
+
+    class SlowLines(collections.deque):
+        """Keeping a line takes a while: the reader is between two reads when stop() comes."""
+
+        def append(self, line: str) -> None:
+            time.sleep(1e-3)
+            super().append(line)
+
+    for _ in range(3):
+        server = SimServer("127.0.15.8")
+        server.lines = SlowLines(maxlen=100)
+        with server:
+            time.sleep(0.05)
+        assert server.lines, "the output read is kept"
 
 
 # -- phri sim-server ------------------------------------------------------------------------------

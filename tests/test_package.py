@@ -4,10 +4,12 @@ numpy only (the optional modules blocked in a subprocess), and the command line'
 from __future__ import annotations
 
 import ast
+import os
 import re
 import subprocess
 import sys
 import textwrap
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -145,7 +147,7 @@ def test_require_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(MissingExtraError, match=r"tqdm is installed but cannot be imported .*colorama"):
         _extras.require("tqdm")
     with pytest.raises(KeyError, match="not one of phri's optional dependencies"):
-        _extras.require("scipy")
+        _extras.require("yaml")  # pyyaml: a test dependency, not an extra
 
 
 def test_check_lists_every_missing_module_and_the_fewest_extras(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -267,6 +269,21 @@ def test_version_and_python_m_phri(capsys: pytest.CaptureFixture[str]) -> None:
     assert usage.returncode == 2 and usage.stderr.startswith("usage: phri ")
 
 
+def test_phri_tasks_lists_every_task_with_its_robot_in_aligned_columns(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from phri.config import task_names
+
+    assert cli(["tasks"]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    assert [r.split()[0] for r in rows] == task_names()
+    assert {r.split()[1] for r in rows} == {"jaco2", "fr3"}
+    # The robot and the title start in the same column on every row, however long the name.
+    columns = [re.match(r"(\S+\s+)(\S+\s+)", r) for r in rows]
+    assert all(columns)
+    assert len({(len(m[1]), len(m[1]) + len(m[2])) for m in columns if m}) == 1
+
+
 @pytest.mark.parametrize(
     ("flags", "level"),
     [([], "INFO"), (["-v"], "DEBUG"), (["-vv"], "DEBUG"), (["-q"], "WARNING"), (["-qq"], "ERROR"),
@@ -286,7 +303,7 @@ def test_quiet_and_verbose_set_phris_log_level(flags: list[str], level: str) -> 
 
 
 def test_the_library_does_not_print() -> None:
-    """Library code logs; only the command-line modules (and the demo, for now) print."""
+    """Library code logs; only the command-line modules print (and the simulator server its ready line)."""
     printing = sorted(
         path.relative_to(PACKAGE).as_posix()
         for path in PACKAGE.rglob("*.py")
@@ -295,7 +312,7 @@ def test_the_library_does_not_print() -> None:
             for n in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
         )
     )
-    assert set(printing) <= {"cli.py", "study/cli.py", "demo.py", "franka/sim_server.py"}, printing
+    assert set(printing) <= {"cli.py", "study/cli.py", "franka/sim_server.py"}, printing
 
 
 def test_hostile_command_lines_are_clear_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -306,3 +323,82 @@ def test_hostile_command_lines_are_clear_errors(tmp_path: Path, capsys: pytest.C
     assert cli(["demo", "--seed", "-1", "--out", str(tmp_path / "demo")]) == 2
     assert "seed must be an integer >= 0, got -1" in capsys.readouterr().err
     assert not (tmp_path / "s").exists() and not (tmp_path / "demo").exists()
+
+
+# -- the wheel --------------------------------------------------------------------------------------------
+
+
+def test_the_makefile_installs_every_extras_requirement() -> None:
+    """`make dev` installs the requirements of every extra the tests, the docs and the lint need."""
+    makefile = (ROOT / "Makefile").read_text(encoding="utf-8")
+    installed = {
+        _requirement_name(r) for r in re.findall(r'"([A-Za-z][^"]*)"', makefile.split("$(DEPS):")[1])
+    }
+    extras = PROJECT["optional-dependencies"]
+    wanted = {
+        _requirement_name(r)
+        for extra in ("all", "study", "sim", "parquet", "ray", "franka", "franka-sim", "docs", "dev", "test")
+        for r in extras[extra]
+    } - {"phri"}
+    assert wanted <= installed, sorted(wanted - installed)
+
+
+def _wheel() -> Path:
+    """The wheel as CI ships it: `make wheel` packs the build `make dev` made (cargo reuses it)."""
+    done = subprocess.run(["make", "--no-print-directory", "-s", "wheel"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=1200)  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    (wheel,) = (ROOT / "dist").glob("phri-*.whl")
+    return wheel
+
+
+@pytest.mark.slow
+def test_the_wheel_is_abi3_manylinux2014_stripped_complete_and_runs_the_demo_in_a_fresh_venv(
+    tmp_path: Path,
+) -> None:
+    wheel = _wheel()
+    # One wheel for CPython >= 3.10 (the stable ABI), for glibc >= 2.17 (manylinux2014), as its tags say
+    # and as auditwheel reads the extension's symbols.
+    assert wheel.name.endswith("-cp310-abi3-manylinux2014_x86_64.manylinux_2_17_x86_64.whl"), wheel.name
+    shown = subprocess.run([sys.executable, "-m", "auditwheel", "show", str(wheel)], capture_output=True,
+                           text=True, timeout=120, check=True).stdout  # fmt: skip
+    assert 'consistent with the following platform tag:\n"manylinux_2_17_x86_64"' in shown, shown
+    with zipfile.ZipFile(wheel) as z:
+        names = set(z.namelist())
+        (extension,) = [n for n in names if n.endswith(".so")]
+        assert extension == "phri/_phri.abi3.so"
+        z.extract(extension, tmp_path)
+        metadata = z.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
+    # The robot descriptions, the task files, the stubs and the typing marker ship inside it.
+    data = (".urdf", ".toml", ".pyi", ".typed")
+    shipped = {p.relative_to(ROOT / "python").as_posix() for p in PACKAGE.rglob("*")
+               if p.is_file() and (p.suffix in data or p.name == "NOTICE")}  # fmt: skip
+    assert {"phri/robots/jaco2/j2s7s300.urdf", "phri/robots/fr3/fr3.urdf", "phri/tasks/table.toml",
+            "phri/py.typed", "phri/_phri.pyi"} <= shipped <= names, sorted(shipped - names)  # fmt: skip
+    # Stripped: no symbol table left in the extension.
+    sections = subprocess.run(["readelf", "-S", "-W", str(tmp_path / extension)], capture_output=True,
+                              text=True, timeout=60, check=True).stdout  # fmt: skip
+    assert ".dynsym" in sections and ".symtab" not in sections and ".debug_info" not in sections
+    # The index page's text is the short one, which starts with `pip install`.
+    description = metadata.split("\n\n", 1)[1]
+    assert description.strip() == (ROOT / PROJECT["readme"]).read_text(encoding="utf-8").strip()
+    first, second = description.splitlines()[:2]
+    assert first == "```sh" and second.startswith("pip install phri "), (first, second)
+    # Installed into a fresh environment, away from the source tree, the demo runs.
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    pip = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "--quiet", f"{wheel}[sim]"],
+                         capture_output=True, text=True, timeout=900)  # fmt: skip
+    assert pip.returncode == 0, pip.stdout + pip.stderr
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    where = subprocess.run(
+        [str(venv / "bin" / "python"), "-c", "import phri; print(phri.__file__)"], cwd=tmp_path, env=env,
+        capture_output=True, text=True, timeout=120, check=True,
+    )  # fmt: skip
+    assert where.stdout.startswith(str(venv)), where.stdout
+    demo = subprocess.run([str(venv / "bin" / "phri"), "demo", "--out", "out", "--no-frames"], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=900)  # fmt: skip
+    assert demo.returncode == 0, demo.stderr
+    rows = [line.split()[:2] for line in demo.stdout.splitlines()[2:]]
+    assert rows == [[t, s] for t in ("human", "coffee", "table", "laptop") for s in ("impedance", "learning")]
+    assert len(list((tmp_path / "out").glob("path_*.png"))) == 4

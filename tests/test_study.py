@@ -22,6 +22,7 @@ from scipy import stats
 
 import phri.config
 from phri.exceptions import ConfigError, InvalidParameterError, PhriError
+from phri.sim.participant import default_population, load_population
 from phri.study import (
     COLUMNS,
     ResultStore,
@@ -39,9 +40,11 @@ from phri.study import (
     strategy_order,
 )
 from phri.study import run as run_module
+from phri.study.calibrate import CalibrationError, CalibrationSettings, calibrate, write_population
 from phri.study.cli import main as cli
 from phri.study.parallel import THREAD_ENV, ProcessBackend, default_workers, make_backend
 from phri.study.report import _pooled_form, write_report
+from phri.study.targets import TargetsError, read_targets
 
 #: A study small enough for CI: 2 participants × 2 strategies × 2 tasks × 2 attempts = 16 episodes of 8 s
 #: (the shortest duration, with some margin, at which the human task's goal is reachable within the
@@ -1229,3 +1232,169 @@ def _answers(tmp_path: Path) -> Path:
         "participant,strategy," + ",".join(f"q{i}" for i in range(1, 11)) + "\n1,learning" + ",4" * 10 + "\n"
     )
     return path
+
+
+# -- the participants: population, reference statistics, calibration -----------------------------------
+
+
+#: A population unlike the default: weaker and less patient (a file that extends the default).
+WEAK = 'extends = "default"\n[parameters.max_force]\ndistribution = "fixed"\nvalue = 3.0\n'
+
+
+def test_the_study_draws_its_people_from_its_population_and_keeps_it(tmp_path: Path) -> None:
+    weak_file = tmp_path / "weak.toml"
+    weak_file.write_text(WEAK)
+    weak = load_population(weak_file)
+    config = StudyConfig(**{**TINY.to_dict(), "tasks": TINY.tasks, "population": weak})
+    assert participant_params(7, 1, weak).max_force == 3.0
+    assert participant_params(7, 1) == default_population().draw(7, 1) != participant_params(7, 1, weak)
+    # The study keeps the population itself (a resumed study draws the same people).
+    again = StudyConfig.from_dict(json.loads(json.dumps(config.to_dict())))
+    assert again == config and again.population == weak and again != TINY
+    study = tmp_path / "study.toml"
+    study.write_text('participants = 2\npopulation = "weak.toml"\n')  # relative to the study file
+    assert StudyConfig.from_toml(study).population == weak
+    assert StudyConfig(population="default").population == default_population()
+    with pytest.raises(StudyConfigError, match="study: population must be a population name, a file path"):
+        StudyConfig(population=42)  # type: ignore[arg-type]
+    study.write_text('participants = 2\npopulation = "nobody.toml"\n')
+    with pytest.raises(
+        StudyConfigError, match=r"study.toml: key 'population': .*nobody.toml: population file not found"
+    ):
+        StudyConfig.from_toml(study)
+
+
+def test_cli_study_population_errors_name_the_file_and_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "people.toml"
+    bad.write_text('extends = "default"\n[parameters.delay]\ndistribution = "fixed"\nvalue = -1\n')
+    assert cli(["study", str(tmp_path / "s"), "--population", str(bad), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: key 'parameters.delay.value' must keep delay a finite number >= 0 [s]" in err
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "pattern"),
+    [
+        ("task,strategy,effort\ncoffee,impedance,1\n", None),
+        ("task,strategy,force\ncoffee,impedance,1\n", r"line 2: unknown column 'force'"),
+        ("task,effort\ncoffee,1\n", r"missing column 'strategy'"),
+        ("task,strategy,effort\ncoffee,compliance,1\n", r"line 3, column 'strategy' must be one of"),
+        (
+            "task,strategy,effort\ncoffee,impedance,-3\n",
+            r"line 3, column 'effort' must be a finite number > 0",
+        ),
+        (
+            "task,strategy,effort,effort_sd\ncoffee,impedance,3,-1\n",
+            r"column 'effort_sd' must be a finite number >= 0",
+        ),
+        ("task,strategy,effort,interaction_time_sd\ncoffee,impedance,3,1\n", r"an SD without the mean"),
+        ("task,strategy,effort\ncoffee,impedance,1\ncoffee,impedance,2\n", r"line 4: a second row"),
+        ("task,strategy,effort\ncoffee,impedance,\n", r"line 3: no target for coffee/impedance"),
+        ("task,strategy,f_effort\ncoffee+table,,80\n", r"column 'df_error': missing"),
+        ("task,strategy,effort\n", r"no task × strategy rows"),
+        ("task,strategy,effort\ncoffee,impedance,1,2\n", r"line 3: 4 fields, the header has 3"),
+    ],
+)
+def test_bad_targets_name_the_file_line_and_column(tmp_path: Path, text: str, pattern: str | None) -> None:
+    path = tmp_path / "targets.csv"
+    path.write_text("# a comment\n" + text)
+    if pattern is None:
+        assert read_targets(path).tasks == ["coffee"]
+        return
+    with pytest.raises(TargetsError, match=f"^{path}: .*{pattern}"):
+        read_targets(path)
+
+
+def test_the_shipped_reference_is_the_papers() -> None:
+    paper = read_targets("corl2017")
+    assert paper.tasks == ["coffee", "table"]  # the laptop task is held out
+    means = {(c.task, c.strategy): dict(c.means) for c in paper.cells}
+    assert means[("coffee", "impedance")] == {
+        "effort": 260.2,
+        "interaction_time": 5.37,
+        "effort_per_sample": 4.8,
+    }
+    (pooled,) = paper.pooled
+    assert pooled.tasks == ("coffee", "table", "laptop") and dict(pooled.f)["effort"] == 86.29
+    assert pooled.partial_eta_sq("effort") == pytest.approx(86.29 / (86.29 + 116))
+
+
+@pytest.mark.slow
+def test_report_compares_the_study_with_a_reference(reference: Path, tmp_path: Path) -> None:
+    targets = tmp_path / "pilot.csv"
+    targets.write_text(
+        "task,strategy,effort,interaction_time,effort_per_sample,interaction_time_sd,f_effort,df_error\n"
+        "laptop,impedance,200,4,5,1,,\nlaptop,learning,50,1,5,,,\nlaptop,,,,,,30,4\n"
+    )
+    path = write_report(reference, tmp_path / "report", reference=targets)
+    text = path.read_text()
+    assert "## Against the reference" in text and str(targets) in text
+    table = pd.read_csv(tmp_path / "report" / "reference.csv")
+    assert list(table.columns) == ["task", "strategy", "statistic", "reference", "simulated", "ratio"]
+    results = analysis.prepare(load_results(reference))
+    imp = results[(results["task"] == "laptop") & (results["strategy"] == "impedance")]
+    row = table[(table["strategy"] == "impedance") & (table["statistic"] == "effort")].iloc[0]
+    assert row["simulated"] == pytest.approx(imp["effort"].mean())
+    assert row["ratio"] == pytest.approx(imp["effort"].mean() / 200)
+    assert len(table) == 8  # 3 + 1 SD, 3, and the pooled F
+    with pytest.raises(TargetsError, match=r"task\(s\) \['coffee'\] are not among the study's tasks"):
+        write_report(reference, tmp_path / "r2", reference=_targets(tmp_path, "coffee"))
+
+
+def _targets(folder: Path, task: str, effort: float = 100.0) -> Path:
+    path = folder / f"{task}.csv"
+    path.write_text(
+        f"task,strategy,effort,interaction_time\n{task},impedance,{effort},3\n"
+        f"{task},learning,{effort / 3},1\n"
+    )
+    return path
+
+
+@pytest.mark.slow
+def test_a_tiny_calibration(tmp_path: Path) -> None:
+    """make test's only calibration: one participant, one short task, three candidates."""
+    table = phri.config.load_task("table")
+    goal = table.start + (table.goal - table.start) * 3.0 / table.duration
+    short = dataclasses.replace(table, duration=3.0, waypoints=7, goal=goal)
+    targets = read_targets(_targets(tmp_path, "table", effort=40.0))
+    settings = CalibrationSettings(participants=1, budget=3, free=("max_force.median",), tolerance=0.05)
+    seen: list[float] = []
+    result = calibrate(targets, settings=settings, tasks={"table": short}, progress=False,
+                       on_candidate=lambda k, c: seen.append(c.loss))  # fmt: skip
+    assert result.evaluations == len(seen) == 3 and result.best.loss == min(seen)
+    assert {r["statistic"] for r in result.best.comparison} == {"effort", "interaction_time"}
+    if result.reached:  # unlikely within 5 %; either way the outcome is stated
+        assert write_population(result, tmp_path / "p.toml", command="test").is_file()
+        return
+    assert "MISSED" in result.table()
+    with pytest.raises(
+        CalibrationError, match=r"cannot reach \d+ of its targets within ±5 %.*nothing written"
+    ):
+        write_population(result, tmp_path / "p.toml", command="phri calibrate x")
+    assert not (tmp_path / "p.toml").exists()
+    out = write_population(result, tmp_path / "p.toml", command="phri calibrate x", accept_misses=True)
+    written = load_population(out)
+    about = dict(written.about)
+    assert about["command"] == "phri calibrate x" and about["seed"] == 0 and "MISSES" in about["description"]
+    assert written == result.population
+    with pytest.raises(FileExistsError):
+        write_population(result, out, command="again", accept_misses=True)
+
+
+def test_cli_calibrate_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "p.toml"
+    bad = tmp_path / "t.csv"
+    bad.write_text("task,strategy,effort\nkitchen,impedance,3\n")
+    assert cli(["calibrate", str(bad), "--out", str(out), "--no-progress"]) == 2
+    assert "phri calibrate: error:" in capsys.readouterr().err
+    assert cli(["calibrate", str(tmp_path / "none.csv"), "--out", str(out)]) == 2
+    assert "targets file not found" in capsys.readouterr().err
+    assert cli(["calibrate", "corl2017", "--out", str(out), "--free", "strength.median"]) == 2
+    assert "free: unknown parameter 'strength'" in capsys.readouterr().err
+    out.write_text("")
+    assert cli(["calibrate", "corl2017", "--out", str(out)]) == 2
+    assert "never overwritten" in capsys.readouterr().err
+    assert not (tmp_path / "none.csv").exists()

@@ -28,6 +28,7 @@ EXTRA_OF: dict[str, str] = {
     "pandas": "study",
     "statsmodels": "study",
     "tqdm": "study",
+    "scipy": "study",
     "pyarrow": "parquet",
     "ray": "ray",
     "pylibfranka": "franka",

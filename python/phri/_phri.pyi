@@ -1,4 +1,5 @@
-# Type stubs of the native module (checked against it by `make lint`: mypy.stubtest).
+# Type stubs of the native module (checked against it by `make lint`: mypy.stubtest). Types only: the
+# docstrings live in the bindings (crates/phri_py), where help() and the API docs read them.
 from collections.abc import Iterator, Mapping, Sequence
 from os import PathLike
 from typing import Any, ClassVar, Literal, final
@@ -50,8 +51,6 @@ UPDATE_RULES: tuple[_UpdateRule, ...]
 
 @final
 class Robot:
-    """A serial-chain robot (kinematics and rigid-body dynamics), read from a URDF."""
-
     @staticmethod
     def from_urdf(path: str | PathLike[str], base: str | None = None, tip: str | None = None) -> Robot: ...
     @staticmethod
@@ -107,8 +106,6 @@ class Robot:
 
 @final
 class SceneObject:
-    """A named object (plane, box, cylinder, sphere) in the robot's base frame [m, rad]."""
-
     SHAPES: ClassVar[list[str]]
     KINDS: ClassVar[list[str]]
     DEFAULT_MARGIN: ClassVar[float]
@@ -153,8 +150,6 @@ class SceneObject:
 
 @final
 class Scene:
-    """Named objects in the robot's base frame (names unique), e.g. a task's [scene]."""
-
     def __new__(cls, objects: Sequence[SceneObject] = ...) -> Scene: ...
     @property
     def objects(self) -> list[SceneObject]: ...
@@ -171,8 +166,6 @@ class Scene:
 
 @final
 class Features:
-    """Task features Φ(ξ) of an (N, n) trajectory, summed over segments (q_{i-1}, q_i], i = 1..N-1."""
-
     def __new__(
         cls,
         robot: Robot,
@@ -202,8 +195,6 @@ class Features:
 
 @final
 class UpdateInfo:
-    """What one weight update did."""
-
     @property
     def chosen(self) -> int | None: ...
     @property
@@ -215,8 +206,6 @@ class UpdateInfo:
 
 @final
 class WeightUpdate:
-    """w ← clip(w − α ⊙ ΔΦ, lower, upper) by rule "all", "max" or "confidence"."""
-
     def __new__(
         cls,
         step: _Array,
@@ -249,8 +238,6 @@ def relevance(delta_phi: _Array, sensitivity: _Array, u_h: _Array) -> _F64: ...
 
 @final
 class InteractionDetector:
-    """Per-joint torque thresholds [N·m] (default the JACO2's 8, 8, 8, 2, 1, 1, 1) and bias."""
-
     def __new__(cls, thresholds: _Array | None = None, bias: _Array | None = None) -> InteractionDetector: ...
     @property
     def thresholds(self) -> _F64: ...
@@ -260,8 +247,6 @@ class InteractionDetector:
 
 @final
 class TimedTrajectory:
-    """(N, n) waypoints evenly spaced over [0, duration] s, interpolated "cubic" or "linear"."""
-
     def __new__(
         cls, waypoints: _Array, duration: float, interpolation: Literal["cubic", "linear"] = "cubic"
     ) -> TimedTrajectory: ...
@@ -287,8 +272,6 @@ class TimedTrajectory:
 
 @final
 class ImpedanceController:
-    """Impedance law: eq. 6 (`torque`) or, with a desired inertia, eq. 5 (`torque_full`) [N·m]."""
-
     def __new__(
         cls,
         robot: Robot,
@@ -367,6 +350,9 @@ class SafetyLayer:
     """The control loop's per-tick safety checks (joint position, velocity, torque and torque-rate
     limits, the tool's box, late ticks, non-finite values); allocation-free."""
 
+    LATE_AFTER: ClassVar[float]
+    LATE_TICKS: ClassVar[int]
+
     def __new__(
         cls,
         robot: Robot,
@@ -419,8 +405,6 @@ class SafetyLayer:
 
 @final
 class Deformation:
-    """ξ_H = ξ_R + μ·A⁻¹·U_H (eq. 7): a push at `index` moves the next `window` waypoints by μ·H·u_H."""
-
     def __new__(
         cls,
         *,
@@ -444,8 +428,6 @@ class Deformation:
 
 @final
 class TrajoptInfo:
-    """What a trajectory optimisation did."""
-
     @property
     def iterations(self) -> int: ...
     @property
@@ -471,9 +453,6 @@ class TrajoptInfo:
 
 @final
 class TrajectoryOptimizer:
-    """ξ_R = argmin w·Φ(ξ) (eq. 4) over N waypoints, start and goal fixed, joint limits as bounds;
-    by default within the velocity limits (needs `duration` [s]) and clear of the features' scene."""
-
     CLEARANCE_TOLERANCE: ClassVar[float]
     STEP_TOLERANCE: ClassVar[float]
     SELF_MARGIN: ClassVar[float]
@@ -525,8 +504,6 @@ class TrajectoryOptimizer:
 
 @final
 class PlanLevels:
-    """A plan with the plans of its optimiser's coarse levels it came from."""
-
     @property
     def plan(self) -> _F64: ...
     def level(self, k: int) -> _F64: ...
@@ -534,14 +511,6 @@ class PlanLevels:
 
 @final
 class Learner:
-    """Algorithm 1: deform, update and replan at every sampled interaction.
-
-    ``replan_latency`` [s]: 0.0 replans inline in ``observe``; L > 0 replans on a worker thread and
-    adopts the plan at the first ``observe`` with t >= t_push + L (waiting for the worker there:
-    deterministic, for simulation); None replans on the worker and adopts at the first ``observe``
-    after it finished (hardware; ``observe`` never waits). ``observe`` takes t in
-    [0, duration + 0.01] s, never going back (``reset()`` starts again)."""
-
     TIME_SLACK: ClassVar[float]
 
     def __new__(
@@ -597,8 +566,6 @@ class Learner:
 
 @final
 class LearnerHistory:
-    """A learner's record as arrays: a row per sampled interaction (M) or per plan (P)."""
-
     @property
     def t(self) -> _F64: ...
     @property

@@ -63,18 +63,29 @@ def _demo(args: argparse.Namespace) -> int:
     from phri._extras import check_part
 
     check_part("the demo")
-    from phri.demo import run_demo
+    from phri.demo import run_demo, table_header, table_row
 
-    run_demo(Path(args.out), seed=args.seed, gui=args.gui, frames=not args.no_frames)
+    header = {"printed": False}
+
+    def print_row(result: Any) -> None:
+        if not header["printed"]:
+            print(table_header())
+            header["printed"] = True
+        print(table_row(result), flush=True)
+
+    run_demo(Path(args.out), seed=args.seed, gui=args.gui, frames=not args.no_frames,
+             tasks=args.task, on_episode=print_row)  # fmt: skip
     return 0
 
 
 def _tasks(args: argparse.Namespace) -> int:
     from phri.config import load_task, task_names
 
-    for name in task_names():
+    names = task_names()
+    width = max(map(len, names))
+    for name in names:
         task = load_task(name)
-        print(f"{name:<9} {task.title}  (features: {', '.join(task.feature_names)})")
+        print(f"{name:<{width}}  {task.robot:<5}  {task.title}  (features: {', '.join(task.feature_names)})")
     return 0
 
 
@@ -98,16 +109,22 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``phri`` command's argument parser, with every subcommand."""
     parser = argparse.ArgumentParser(
         prog="phri", description="Learning robot objectives from physical human interaction."
     )
     add_global_options(parser)
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="the four study tasks, both strategies, one simulated participant")
+    demo = sub.add_parser(
+        "demo", help="the four study tasks (or --task), both strategies, one simulated participant"
+    )
     demo.add_argument("--out", default="out/demo", help="output folder (a fresh one is made if it exists)")
     demo.add_argument("--seed", type=int, default=7, help="seed of the simulated participant")
     demo.add_argument("--gui", action="store_true", help="show the PyBullet window")
     demo.add_argument("--no-frames", action="store_true", help="skip rendering PNG frames")
+    demo.add_argument("--task", action="append", metavar="TASK",
+                      help="a shipped task's name or a task file (.toml) to run instead of the study's four; "
+                      "repeat for several")  # fmt: skip
     demo.set_defaults(run=_demo)
     tasks = sub.add_parser("tasks", help="list the shipped tasks")
     tasks.set_defaults(run=_tasks)
@@ -147,6 +164,8 @@ def file_error(command: str, error: OSError) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Runs ``phri`` with `argv` (None: the process's arguments); returns the exit status: 0 done,
+    2 a usage or input error, 3 a file operation the system refused."""
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose, args.quiet)
     try:

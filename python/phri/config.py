@@ -107,6 +107,7 @@ class Task:
 
     @property
     def feature_names(self) -> list[str]:
+        """The features' names, in the order of the weight vectors."""
         return [f.name for f in self.features]
 
     def vector(self, attribute: str) -> np.ndarray:
@@ -115,6 +116,7 @@ class Task:
 
     @property
     def task_index(self) -> int:
+        """Index of the task's own feature (the one the person teaches) in the weight vectors."""
         return self.feature_names.index(self.task_feature)
 
     def feature_set(self, robot: Robot, *, ranges: Any = None) -> Features:

@@ -1,7 +1,7 @@
 //! The one mapping from core errors to the exception classes of `phri.exceptions`.
 
 use phri_core::PhriError;
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
 use pyo3::types::PyType;
@@ -73,5 +73,18 @@ impl<T> IntoPy<T> for phri_core::Result<T> {
     #[inline]
     fn py_err(self) -> PyResult<T> {
         self.map_err(to_py)
+    }
+}
+
+/// `value` as a count (an int in [0, `max`]) for argument `arg`: an InvalidParameterError naming it
+/// when out of range (PyO3's own OverflowError names nothing), a TypeError when not an int (PyO3
+/// prefixes it with "argument '<arg>': ").
+pub fn count(arg: &str, value: &Bound<'_, PyAny>, max: usize) -> PyResult<usize> {
+    let out_of_range = || error(Kind::InvalidParameter, format!("{arg} must be an integer in [0, {max}], got {value}"));
+    match value.extract::<usize>() {
+        Ok(v) if v <= max => Ok(v),
+        Ok(_) => Err(out_of_range()),
+        Err(e) if e.is_instance_of::<PyOverflowError>(value.py()) => Err(out_of_range()),
+        Err(_) => Err(PyTypeError::new_err(format!("must be an int, got {}", value.get_type().qualname()?))),
     }
 }

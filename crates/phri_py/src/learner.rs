@@ -5,12 +5,11 @@ use std::sync::{Mutex, MutexGuard, TryLockError};
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadwriteArray1, PyUntypedArrayMethods};
 use phri_core::learner::{History, Interaction, Learner, LearnerParams, ReplanLatency, DEFAULT_TRANSITION_SPEED, TIME_SLACK};
 use phri_core::reference::Interpolation;
-use pyo3::exceptions::{PyOverflowError, PyTypeError};
 use pyo3::prelude::*;
 
 use crate::arrays::{vector, ArrayIn};
 use crate::deform::PyDeformation;
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{count, error, IntoPy, Kind};
 use crate::features::PyFeatures;
 use crate::interaction::PyInteractionDetector;
 use crate::trajopt::{PyTrajectoryOptimizer, PyTrajoptInfo};
@@ -56,25 +55,12 @@ pub struct PyLearner {
 // The signature spells the default out so that Python's introspection shows it.
 const _: () = assert!(DEFAULT_TRANSITION_SPEED == 0.8);
 
-/// `value` as a count (an int ≥ 0) for argument `arg`: an InvalidParameterError naming it when out
-/// of range, a TypeError (named by PyO3) when not an int.
-fn count(arg: &str, value: &Bound<'_, PyAny>) -> PyResult<usize> {
-    match value.extract::<usize>() {
-        Ok(v) => Ok(v),
-        Err(e) if e.is_instance_of::<PyOverflowError>(value.py()) => {
-            Err(error(Kind::InvalidParameter, format!("{arg} must be an integer in [0, {}], got {value}", usize::MAX)))
-        }
-        // PyO3 prefixes a TypeError with "argument '<arg>': ".
-        Err(_) => Err(PyTypeError::new_err(format!("must be an int, got {}", value.get_type().qualname()?))),
-    }
-}
-
 fn replan_iterations_arg(value: &Bound<'_, PyAny>) -> PyResult<usize> {
-    count("replan_iterations", value)
+    count("replan_iterations", value, usize::MAX)
 }
 
 fn seeds_arg(value: &Bound<'_, PyAny>) -> PyResult<usize> {
-    count("seeds", value)
+    count("seeds", value, usize::MAX)
 }
 
 /// Locks `learner`, taking over a mutex poisoned by a panic (which phri's code does not make).
@@ -342,16 +328,27 @@ impl PyLearner {
 /// feasible plan) [s], and `rejected` (R,) why, naming the violated pair.
 #[pyclass(name = "LearnerHistory", module = "phri._phri", frozen, get_all)]
 pub struct PyLearnerHistory {
+    /// (M,) each sampled interaction's time [s].
     t: Py<PyArray1<f64>>,
+    /// (M, n) the thresholded interaction torque u_H [N·m].
     u_h: Py<PyArray2<f64>>,
+    /// (M, K) Φ(ξ_H) − Φ(ξ_R); NaN where no deformation was made (`moved` = 0).
     delta_phi: Py<PyArray2<f64>>,
+    /// (M, K) the cost weights after each update.
     weights: Py<PyArray2<f64>>,
+    /// (M,) how many waypoints each deformation moved (0: none).
     moved: Py<PyArray1<usize>>,
+    /// (M,) what each weight update did (None where there was none).
     updates: Vec<Option<PyUpdateInfo>>,
+    /// (M,) what each replan did (None where there was none).
     replans: Vec<Option<PyTrajoptInfo>>,
+    /// (P,) the time each plan took effect [s]; the first is the initial plan's, 0.
     plan_t: Py<PyArray1<f64>>,
+    /// (P, N, n) the plans [rad], the initial one first.
     plans: Py<PyArray3<f64>>,
+    /// (R,) the times of replans that were not adopted because they were infeasible [s].
     rejected_t: Py<PyArray1<f64>>,
+    /// (R,) why each of those replans was rejected, naming the violated pair.
     rejected: Vec<String>,
 }
 

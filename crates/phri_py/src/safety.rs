@@ -10,7 +10,7 @@ use phri_core::safety::{
 use pyo3::prelude::*;
 
 use crate::arrays::{vector, ArrayIn};
-use crate::errors::{error, IntoPy, Kind};
+use crate::errors::{count, error, IntoPy, Kind};
 use crate::impedance::Joints;
 use crate::robot::PyRobot;
 
@@ -27,14 +27,20 @@ const _: () = assert!(
 #[pyclass(name = "SafetyViolation", module = "phri._phri", frozen, eq)]
 #[derive(PartialEq)]
 pub struct PySafetyViolation {
+    /// The limit crossed, one of SAFETY_LIMITS.
     #[pyo3(get)]
     limit: &'static str,
+    /// What crossed it: "t" [s], "q" [rad], "qd" [rad/s], "tau_ext" or "tau" [N·m],
+    /// "tool_position" [m] or "tick_gap" [s].
     #[pyo3(get)]
     quantity: &'static str,
+    /// The joint; the axis (0, 1, 2 = x, y, z) for the tool; the late ticks in a row for late ticks.
     #[pyo3(get)]
     index: usize,
+    /// The offending value, in the quantity's unit.
     #[pyo3(get)]
     value: f64,
+    /// The bound it crossed, in the quantity's unit (NaN for a non-finite value).
     #[pyo3(get)]
     bound: f64,
 }
@@ -117,12 +123,26 @@ fn writable<'py>(arg: &str, a: &Bound<'py, PyArray1<f64>>, n: usize) -> PyResult
         .map_err(|e| error(Kind::InvalidParameter, format!("{arg} must be a writable array distinct from the others ({e})")))
 }
 
+fn late_ticks_arg(value: &Bound<'_, PyAny>) -> PyResult<u32> {
+    // u32::MAX fits a usize on every platform PyO3 supports.
+    Ok(count("late_ticks", value, u32::MAX as usize)? as u32)
+}
+
 fn report(status: &SafetyStatus) -> Option<PySafetyViolation> {
     status.violation.map(PySafetyViolation::from)
 }
 
 #[pymethods]
 impl PySafetyLayer {
+    /// A tick more than this many control periods after the previous one is late (the default of
+    /// `late_after`) [-].
+    #[classattr]
+    const LATE_AFTER: f64 = DEFAULT_SAFETY_PARAMS.late_after;
+
+    /// This many late ticks in a row are a violation (the default of `late_ticks`).
+    #[classattr]
+    const LATE_TICKS: u32 = DEFAULT_SAFETY_PARAMS.late_ticks;
+
     #[new]
     #[pyo3(signature = (
         robot, *, tool, position_lower, position_upper, velocity, torque, torque_rate, tool_box = None,
@@ -140,7 +160,7 @@ impl PySafetyLayer {
         tool_box: Option<(ArrayIn<'_>, ArrayIn<'_>)>,
         period: f64,
         late_after: f64,
-        late_ticks: u32,
+        #[pyo3(from_py_with = late_ticks_arg)] late_ticks: u32,
         gravity_compensated: bool,
     ) -> PyResult<Self> {
         let model = robot.model.clone();

@@ -114,6 +114,7 @@ impl PySceneObject {
     #[classattr]
     const DEFAULT_MARGIN: f64 = DEFAULT_MARGIN;
 
+    /// The object's name (unique in its scene).
     #[getter]
     fn name(&self) -> &str {
         self.object.name()

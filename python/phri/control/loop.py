@@ -7,13 +7,18 @@ simulated study, a Franka over libfranka) at the backend's control rate. One tic
 2. the safety layer checks it (:meth:`phri.control.SafetyLayer.check_state`: non-finite values,
    the clock, late ticks, joint positions and velocities, the tool's box);
 3. ``learner.observe(t, tau_ext)``: the learner samples the person's torque on its own grid and
-   returns at once between samples (replans never hold the tick up);
+   returns at once between samples (replans never hold the tick up); a last tick that comes late,
+   past the motion's end, is observed at the end; a failed replan worker
+   (:class:`~phri.exceptions.ReplanWorkerError`) leaves the arm on its plan and the motion goes on
+   (``LoopResult.replan_failures``);
 4. ``learner.reference(t)``: the reference q_R, q̇_R to track;
 5. the impedance torque (:meth:`phri.ImpedanceController.torque_implicit`, with the task's scene so
    the run-time clearance wall acts), including g(q);
 6. the safety layer limits it (:meth:`phri.control.SafetyLayer.limit_torque`: torque and
-   torque-rate limits, clips counted) and makes the command: the torque less g(q) for an arm that
-   compensates gravity itself (``backend.gravity_compensated``);
+   torque-rate limits, clips counted; the first command's rate from what the arm applies at rest
+   where it starts: zero, or g(q) for an arm that does not compensate gravity) and makes the
+   command: the torque less g(q) for an arm that compensates gravity itself
+   (``backend.gravity_compensated``);
 7. write the command.
 
 The watchdog stops the arm on a violation (a non-finite value, a limit crossed, late ticks, a clock
@@ -46,10 +51,16 @@ from typing import Any
 
 import numpy as np
 
-from phri._phri import ImpedanceController, Learner, SafetyViolation
+from phri._phri import SAFETY_LIMITS, ImpedanceController, Learner, SafetyViolation
 from phri.control.backend import Backend, RobotState
 from phri.control.safety import LATE_AFTER, LATE_TICKS, SafetyLimits
-from phri.exceptions import ConnectionLostError, InvalidParameterError, RobotFaultError, SafetyStopError
+from phri.exceptions import (
+    ConnectionLostError,
+    InvalidParameterError,
+    ReplanWorkerError,
+    RobotFaultError,
+    SafetyStopError,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -68,10 +79,7 @@ HOLD_TIME = 0.5
 LOG_RATE = 100.0
 #: Why the watchdog may stop the arm: the safety layer's limits (:data:`phri.control.SAFETY_LIMITS`),
 #: a lost connection, or the robot's own fault.
-STOP_REASONS = (
-    "non_finite", "joint_position", "joint_velocity", "tool_box", "late_ticks", "clock",
-    "connection_lost", "robot_fault",
-)  # fmt: skip
+STOP_REASONS = (*SAFETY_LIMITS, "connection_lost", "robot_fault")
 #: A tick on the log's time grid within this fraction of a log period counts as on it (tick times
 #: carry rounding), as the learner's sample grid does.
 GRID_TOLERANCE = 1e-6
@@ -190,6 +198,9 @@ class LoopResult:
     #: command it clipped to its rate limit.
     torque_clips: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint64))
     rate_clips: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint64))
+    #: Replans the learner's worker failed (:class:`~phri.exceptions.ReplanWorkerError`, a bug in
+    #: phri, logged as an error): the arm kept the plan it tracked and the motion went on.
+    replan_failures: int = 0
     #: Ticks at which the virtual wall acted, and its largest total force [N].
     wall_ticks: int = 0
     wall_peak_force: float = 0.0
@@ -329,13 +340,13 @@ class ControlLoop:
         rows = int(math.floor((duration + self.hold_time) / self.log_period + GRID_TOLERANCE)) + 3
         log = _Log(rows, n)
         result = self.result = LoopResult()
-        self.safety.reset(np.zeros(n) if self.backend.gravity_compensated else None)
         # Garbage frozen now is collected after the run (unfreeze returns it to the oldest generation).
         enabled, froze = gc.isenabled(), gc.get_freeze_count() == 0
         gc.freeze()
         gc.disable()
         try:
             state = self.backend.start(q_start)
+            self.safety.reset(self._at_rest(state))
             self._run(state, float(duration), result, log)
         finally:
             try:
@@ -373,7 +384,15 @@ class ControlLoop:
                 violation = check_state(t, state.q, state.qd, state.tau_ext)
                 if violation is not None:
                     raise self._violation(violation, k, state)
-                observe(t, state.tau_ext)
+                try:
+                    # A late last tick may come past the motion's end (the robot's clock jumped):
+                    # the learner, which refuses times past its task's end, sees the end.
+                    observe(t if t <= duration else duration, state.tau_ext)
+                except ReplanWorkerError as e:
+                    # The learner's worker failed (a bug in phri): as the learner promises, the arm
+                    # keeps the plan it tracks, so the motion goes on; the failure is counted.
+                    result.replan_failures += 1
+                    logger.error("t = %.3f s: %s; the arm keeps its plan", t, e)
                 reference(t, out=out)
                 torque(state.q, state.qd, q_ref, qd_ref, period, out=tau)
                 wall = controller.wall_force
@@ -462,6 +481,19 @@ class ControlLoop:
             return
 
     # -- helpers -----------------------------------------------------------------------------------
+
+    def _at_rest(self, state: RobotState) -> np.ndarray | None:
+        """What the arm applies at rest where it starts, from which the first command's rate is
+        limited: nothing for an arm that compensates gravity, g(q) for one that does not (PyBullet,
+        or a lab's own arm). None for a state that cannot be trusted: the first tick stops then,
+        before any command."""
+        n = self.backend.robot.nq
+        if self.backend.gravity_compensated:
+            return np.zeros(n)
+        q = np.asarray(state.q, dtype=float)
+        if q.shape != (n,) or not np.isfinite(q).all():
+            return None
+        return self.backend.robot.gravity(q)
 
     def _log_row(self, log: _Log, state: RobotState, wall_force: float) -> int:
         row = log.rows

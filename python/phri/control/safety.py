@@ -24,18 +24,20 @@ from phri.robots import load as load_description
 __all__ = ["LATE_AFTER", "LATE_TICKS", "SafetyLimits", "safety_limits"]
 
 #: A tick more than this many control periods after the previous one (on the robot's clock) is
-#: late: the robot ticked at least once without a command from phri.
-LATE_AFTER = 1.5
-#: This many late ticks in a row stop the arm (libfranka itself aborts after a few lost commands).
-LATE_TICKS = 3
+#: late: the robot ticked at least once without a command from phri (the core's default, 1.5).
+LATE_AFTER: float = SafetyLayer.LATE_AFTER
+#: This many late ticks in a row stop the arm (libfranka itself aborts after a few lost commands;
+#: the core's default, 3).
+LATE_TICKS: int = SafetyLayer.LATE_TICKS
 
 
 @dataclass(frozen=True, eq=False)
 class SafetyLimits:
     """The limits the safety layer holds the arm to; one entry per joint in each array.
 
-    The loop stops the arm when a joint leaves [position_lower, position_upper] [rad] (the URDF's
-    limits less the margin; ±inf for a continuous joint), moves faster than `velocity` [rad/s], or
+    The loop stops the arm when a joint leaves the interval from `position_lower` to
+    `position_upper` [rad] (the URDF's limits less the margin; ±inf for a continuous joint), moves
+    faster than `velocity` [rad/s], or
     the origin of frame `tool` leaves `tool_box` (lower, upper corners [m] in the base frame; None:
     anywhere); it clips the torque to `torque` [N·m] and the command's rate of change to
     `torque_rate` [N·m/s]. `source` says where the limits came from (for messages)."""

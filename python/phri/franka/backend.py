@@ -233,9 +233,10 @@ class FrankaBackend:
     # -- one tick ----------------------------------------------------------------------------------
 
     def read(self) -> RobotState:
-        """The robot's next state. ``tau_ext`` is the person's push on the arm [N·m] (phri's sign,
-        as in simulation): the negative of libfranka's ``tau_ext_hat_filtered``, which libfranka
-        gives as the torque the robot exerts on its surroundings (τ_J minus the model's torque)."""
+        """Blocks until the arm's next 1 kHz tick and returns its state (libfranka's ``readOnce``);
+        a lost connection is a ConnectionLostError. ``tau_ext`` is the person's push on the arm
+        [N·m] (phri's sign, as in simulation): the negative of libfranka's ``tau_ext_hat_filtered``,
+        which libfranka gives as the torque the robot exerts on its surroundings."""
         if self._fault is not None:
             return self._fault
         if self._control is None:
@@ -272,6 +273,8 @@ class FrankaBackend:
         return RobotState(t=t - self._t0, q=block[0], qd=block[1], tau_ext=block[2], fault=fault)
 
     def write(self, tau: np.ndarray) -> None:
+        """Commands the joint torque `tau` [N·m] for the tick just read, gravity excluded (the robot
+        compensates it); libfranka's ``writeOnce``."""
         if self._control is None:
             raise ConnectionLostError(f"host {self.host!r}: not connected (call start first)")
         torques = self._torques
@@ -285,6 +288,8 @@ class FrankaBackend:
             raise RobotFaultError(f"host {self.host!r}: the robot aborted control: {e}") from None
 
     def stop(self) -> None:
+        """Ends torque control and releases the arm; idempotent, never raises for an arm already
+        gone."""
         robot, self._robot, self._control, self._fault = self._robot, None, None, None
         if robot is not None:
             try:

@@ -160,6 +160,7 @@ class FrankaEpisode:
 
     @property
     def learner(self) -> Learner:
+        """The episode's learner (Algorithm 1, or compliance only for the impedance strategy)."""
         return self.controls.learner
 
     @learner.setter

@@ -88,6 +88,7 @@ ERROR_NAMES: tuple[str, ...] = (
     "base_acceleration_initialization_timeout",
     "base_acceleration_invalid_reading",
 )
+#: The faults the scene server can inject (``KIND[:ARG][@T]``; see the module docstring).
 FAULT_KINDS = ("reflex", "user_stop", "nan", "late", "stall", "drop")
 #: State fields a ``nan`` fault can spoil (phri's names; tau_ext is libfranka's tau_ext_hat_filtered).
 NAN_FIELDS = ("q", "dq", "tau_ext")
@@ -172,14 +173,21 @@ class Fault:
             "reflex": ",".join(self.errors),
             "nan": self.field,
             "late": str(self.ticks),
-            "stall": f"{self.seconds:g}",
-            "user_stop": f"{self.seconds:g}",
+            "stall": _text(self.seconds),
+            "user_stop": _text(self.seconds),
         }.get(self.kind, "")
         return (
             self.kind
             + (f":{argument}" if argument else "")
-            + (f"@{self.at:g}" if self.at is not None else "")
+            + (f"@{_text(self.at)}" if self.at is not None else "")
         )
+
+
+def _text(value: float) -> str:
+    """`value` as :meth:`Fault.parse` reads it back exactly: the shortest repr, without a trailing
+    ``.0`` (``2``, ``0.5``, ``1234.5678``)."""
+    text = repr(float(value))
+    return text[:-2] if text.endswith(".0") else text
 
 
 def _number(spec: str, what: str, text: str) -> float:

@@ -74,6 +74,7 @@ class JointMove:
         return self.duration + self.settle
 
     def observe(self, t: float, tau_measured: np.ndarray) -> tuple[bool, bool, bool]:
+        """Nothing to learn during the move: (interacting, updated, replanned) all False."""
         return False, False, False
 
     def reference(self, t: float, *, out: Sequence[np.ndarray]) -> Sequence[np.ndarray]:

@@ -101,17 +101,19 @@ def _stop_record(stop: Any) -> dict[str, Any]:
     return {k: _json_value(v) for k, v in record.items()}
 
 
-def write_run(folder: Path, task: Task, strategy: str, host: str, outcome: FrankaOutcome) -> RunOutput:
-    """Writes the episode's log, figures and summary into `folder` (made by the caller, empty)."""
+def write_run(folder: Path, episode: FrankaEpisode, outcome: FrankaOutcome) -> RunOutput:
+    """Writes the log, figures and summary of `episode`'s `outcome` into `folder` (made by the
+    caller, empty)."""
     from phri.demo import episode_figures
 
+    task, strategy, host = episode.task, episode.config.strategy, episode.backend.host
     (folder / "logs").mkdir(exist_ok=True)
     log = write_log(folder / "logs" / f"{task.name}_{strategy}.npz", outcome.log_arrays)
     figures: list[Path] = []
     result = outcome.result
     if result is not None:
         result.log = log
-        figures = episode_figures(folder, task, {strategy: result})
+        figures = episode_figures(folder, task, episode.controls.planner, episode.model, {strategy: result})
     summary = summary_of(outcome, task, strategy, host)
     if result is not None:
         row = result.row()
@@ -148,7 +150,7 @@ def run_episode_at(
         host, task, config, connect_timeout=connect_timeout, move_speed=move_speed, max_move=max_move
     )
     outcome = episode.run()
-    return write_run(fresh_folder(out), task, strategy, host, outcome)
+    return write_run(fresh_folder(out), episode, outcome)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

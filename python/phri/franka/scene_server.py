@@ -98,7 +98,7 @@ def participant_for(task: Task, robot: Robot, seed: int, dt: float = TICK) -> Ca
         params = ParticipantParams.draw(np.random.default_rng(seed))
         # The person's own random stream, as an episode spawns it from the same seed.
         person_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[0])
-        return Participant(params, desired, task.task_feature, robot, person_rng, dt=dt)
+        return Participant(params, task, robot, desired, person_rng, dt=dt)
 
     return make
 
@@ -515,16 +515,23 @@ def build_server(
     return SceneServer(sim, host, Push(make_person, robot, start), faults, channel, report)
 
 
-def read_channel(stream: TextIO, channel: queue.SimpleQueue[Fault], report: Report) -> None:
+def read_channel(
+    stream: TextIO, channel: queue.SimpleQueue[Fault], report: Report, closed: threading.Event | None = None
+) -> None:
     """The control channel: one fault per line of `stream` (e.g. ``reflex:joint_velocity_violation``),
-    queued for the next tick; a bad line is answered with the reason and ignored."""
-    for line in stream:
-        if not line.strip():
-            continue
-        try:
-            channel.put(Fault.parse(line))
-        except InvalidParameterError as e:
-            report(f"fault refused: {e}")
+    queued for the next tick; a bad line is answered with the reason and ignored. Sets `closed` when
+    the stream ends (its writer, e.g. the SimServer's process, is gone)."""
+    try:
+        for line in stream:
+            if not line.strip():
+                continue
+            try:
+                channel.put(Fault.parse(line))
+            except InvalidParameterError as e:
+                report(f"fault refused: {e}")
+    finally:
+        if closed is not None:
+            closed.set()
 
 
 def serve(
@@ -539,16 +546,21 @@ def serve(
     report: Report | None = None,
     stop: threading.Event | None = None,
 ) -> None:
-    """Serves the scene on `host` until interrupted (Ctrl-C) or `stop` is set; `realtime` slows the
-    simulation down (2: each 1 ms tick takes 2 ms of wall time). Faults come from the schedule
-    `faults` and, one per line, from `control` (the control channel; None: none)."""
+    """Serves the scene on `host` until interrupted (Ctrl-C), `stop` is set or the control channel
+    closes; `realtime` slows the simulation down (2: each 1 ms tick takes 2 ms of wall time). Faults
+    come from the schedule `faults` and, one per line, from `control` (the control channel; None:
+    none). A closed control channel means its writer is gone (a SimServer's process killed without
+    stopping its server): the server stops rather than run on, orphaned."""
     report = report or _log
     channel: queue.SimpleQueue[Fault] = queue.SimpleQueue()
+    closed = threading.Event()
     with build_server(
         host, task=task, seed=seed, person=person, faults=faults, channel=channel, report=report
     ) as server:
         if control is not None:
-            threading.Thread(target=read_channel, args=(control, channel, report), daemon=True).start()
+            threading.Thread(
+                target=read_channel, args=(control, channel, report, closed), daemon=True
+            ).start()
         # The loop first, then the line: a client that connects on it finds the server ticking.
         server.run_async(realtime)
         time.sleep(0.05)
@@ -561,6 +573,9 @@ def serve(
         try:
             while server.async_thread is not None and server.async_thread.is_alive():
                 if stop is not None and stop.is_set():
+                    break
+                if closed.is_set():
+                    report("the control channel closed (its writer is gone): stopping")
                     break
                 server.async_thread.join(0.2)
         except KeyboardInterrupt:

@@ -41,6 +41,8 @@ DEFAULT_HOST = "127.0.0.2"
 START_TIMEOUT = 60.0
 #: The server's output lines a SimServer keeps (the latest).
 KEPT_LINES = 1000
+#: How long stopping a SimServer waits for the rest of the child's output to be read [s].
+DRAIN_WAIT = 5.0
 
 
 def check_loopback(host: str) -> str:
@@ -128,6 +130,7 @@ class SimServer:
         self.process: subprocess.Popen[bytes] | None = None
         #: The server's output lines (the latest KEPT_LINES): its ready line, injected faults.
         self.lines: collections.deque[str] = collections.deque(maxlen=KEPT_LINES)
+        self._drain: threading.Thread | None = None
 
     def command(self) -> list[str]:
         """The child's command line."""
@@ -146,8 +149,6 @@ class SimServer:
         return command
 
     def __enter__(self) -> SimServer:
-        from phri.franka.backend import COMMAND_PORT
-
         self.process = subprocess.Popen(
             self.command(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.PIPE
         )
@@ -156,18 +157,36 @@ class SimServer:
         ready = threading.Event()
 
         def drain(stream: IO[bytes]) -> None:
-            for raw in stream:
-                line = raw.decode(errors="replace").rstrip()
-                self.lines.append(line)
-                if line.startswith(READY):
-                    ready.set()
+            try:
+                for raw in stream:
+                    line = raw.decode(errors="replace").rstrip()
+                    self.lines.append(line)
+                    if line.startswith(READY):
+                        ready.set()
+            except (ValueError, OSError):
+                pass  # stop() closed the stream: a child that outlived DRAIN_WAIT is dead now
 
-        threading.Thread(target=drain, args=(self.process.stdout,), daemon=True).start()
+        self._drain = threading.Thread(target=drain, args=(self.process.stdout,), daemon=True)
+        self._drain.start()
+        try:
+            self._wait_ready(ready)
+        except BaseException:
+            # __exit__ does not run when __enter__ fails: whatever failed (a timeout, Ctrl-C while
+            # waiting), the child must not outlive it.
+            self.stop()
+            raise
+        return self
+
+    def _wait_ready(self, ready: threading.Event) -> None:
+        """Waits until the child printed its ready line and its port answers, else raises
+        ConnectionLostError."""
+        from phri.franka.backend import COMMAND_PORT
+
+        assert self.process is not None
         deadline = time.monotonic() + START_TIMEOUT
         while not ready.wait(0.1):
             status = self.process.poll()
             if status is not None or time.monotonic() > deadline:
-                self.stop()
                 what = (
                     f"exited with status {status}"
                     if status is not None
@@ -179,9 +198,7 @@ class SimServer:
         try:
             socket.create_connection((self.host, COMMAND_PORT), timeout=5.0).close()
         except OSError as e:
-            self.stop()
             raise ConnectionLostError(f"franky-sim on {self.host} does not answer on its port: {e}") from None
-        return self
 
     def inject(self, fault: str) -> None:
         """Sends `fault` (``KIND[:ARG][@T]``) through the control channel; the server injects it at
@@ -202,6 +219,11 @@ class SimServer:
             if process.poll() is None:
                 process.kill()
             process.wait(timeout=10)
+            # The output read so far is kept: the reader ends at the end of the stream, which comes
+            # once the child is gone; closing it under the reader would end it with an error.
+            if self._drain is not None:
+                self._drain.join(DRAIN_WAIT)
+                self._drain = None
             for stream in (process.stdout, process.stdin):
                 if stream is not None:
                     try:
@@ -236,7 +258,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-protocol", action="store_true",
                         help="log franky-sim's protocol events (connections, commands)")  # fmt: skip
     parser.add_argument("--control-stdin", action="store_true",
-                        help="read faults, one per line, from stdin (the control channel)")  # fmt: skip
+                        help="read faults, one per line, from stdin (the control channel); the "
+                        "server stops when stdin closes")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -275,6 +298,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Serves franky-sim's FR3 on ``--host`` (a loopback address) until stopped; prints the ready
+    line once clients can connect. Returns the exit status."""
     parser = argparse.ArgumentParser(prog="python -m phri.franka.sim_server", description=__doc__)
     add_arguments(parser)
     return run(parser.parse_args(argv))

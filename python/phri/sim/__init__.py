@@ -9,11 +9,10 @@ from phri.sim.episode import (
     Planner,
     run_episode,
 )
-from phri.sim.participant import DISTRIBUTIONS, Participant, ParticipantParams
+from phri.sim.participant import Participant, ParticipantParams, Population, load_population
 from phri.sim.world import World, WorldParams
 
 __all__ = [
-    "DISTRIBUTIONS",
     "LATER_THRESHOLDS",
     "ORIGINAL_THRESHOLDS",
     "STRATEGIES",
@@ -21,8 +20,10 @@ __all__ = [
     "EpisodeResult",
     "Participant",
     "ParticipantParams",
+    "Population",
     "Planner",
     "World",
     "WorldParams",
+    "load_population",
     "run_episode",
 ]

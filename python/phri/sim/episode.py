@@ -65,6 +65,8 @@ __all__ = [
     "write_log",
 ]
 
+#: The strategies an episode can use: the impedance baseline (track the plan, spring back) and
+#: learning (Algorithm 1).
 STRATEGIES = ("impedance", "learning")
 #: Update rules of phri.WeightUpdate (their one home is the core).
 RULES = UPDATE_RULES
@@ -78,6 +80,8 @@ ORIGINAL_THRESHOLDS = (8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0)
 #: The thresholds of the original's later versions, joints 1..7 [N·m] (used there together with a
 #: subtracted per-joint bias: EpisodeConfig.detector_bias).
 LATER_THRESHOLDS = (4.0, 5.0, 3.0, 4.0, 1.5, 1.5, 1.5)
+#: Longest simulated replan latency an episode accepts [s] (EpisodeConfig.replan_latency).
+MAX_REPLAN_LATENCY = 1.0
 
 
 @dataclass(frozen=True)
@@ -107,6 +111,12 @@ class EpisodeConfig:
     #: onto the new plan at several times its limits). A robot description's ``[interaction]
     #: transition_speed`` caps it (the FR3's, whose joints are four times the JACO2's speed).
     transition_speed: float = 0.8
+    #: The simulated time a replan takes [s]: the learner replans on its worker thread and adopts
+    #: the plan at the first control tick this long after the push's sample, whatever the machine's
+    #: load (:class:`phri.Learner`'s ``replan_latency``). One tick of the 1 kHz loop (the default)
+    #: gives exactly the results of replanning within the tick (Algorithm 1 as written); 0 replans
+    #: inline, in the tick itself.
+    replan_latency: float = 0.001
 
     def __post_init__(self) -> None:
         def fail(key: str, expected: str, got: Any, show: Any = str) -> Exception:
@@ -129,6 +139,8 @@ class EpisodeConfig:
             raise fail(
                 "transition_speed", "a fraction of the velocity limits in [0, 1]", self.transition_speed
             )
+        if not (math.isfinite(self.replan_latency) and 0 <= self.replan_latency <= MAX_REPLAN_LATENCY):
+            raise fail("replan_latency", f"a time in [0, {MAX_REPLAN_LATENCY:g}] s", self.replan_latency)
         for key, positive in (("sensor_bias", False), ("thresholds", True), ("detector_bias", False)):
             value = getattr(self, key)
             if value is not None:
@@ -294,13 +306,14 @@ def make_learner(
     config: EpisodeConfig,
     thresholds: Sequence[float],
     *,
-    replan_latency: float | None = 0.0,
+    replan_latency: float | None,
     optimizer: TrajectoryOptimizer | None = None,
 ) -> Learner:
     """The episode's learner: the one place an episode's :class:`phri.Learner` is made.
 
-    `replan_latency` [s]: 0 replans inline (the simulated study's), None on the worker thread with
-    the plan adopted at the first tick after it is ready (a real arm's), see :class:`phri.Learner`.
+    `replan_latency` [s]: a simulated episode's is ``config.replan_latency`` (0 replans inline, a
+    positive time adopts the worker's plan that long after the push's sample, deterministically);
+    None adopts it at the first tick after it is ready (a real arm's), see :class:`phri.Learner`.
     `optimizer`: the replans' optimiser (default: the planner's)."""
     update = WeightUpdate(
         task.vector("step"), task.vector("lower"), task.vector("upper"),
@@ -324,12 +337,13 @@ def robot_controls(
     config: EpisodeConfig,
     planner: Planner | None = None,
     *,
-    replan_latency: float | None = 0.0,
+    replan_latency: float | None,
 ) -> RobotControls:
     """The robot's side of an episode of `task` on `model` (`task.robot`'s description supplies the
     interaction thresholds, the cap on the blend's speed, the impedance gains and the safety limits):
-    the planner (made here if `planner` is None), the learner (:func:`make_learner`; its blend into a
-    new plan no faster than the description's ``transition_speed``), the impedance law with the task's scene
+    the planner (made here if `planner` is None), the learner (:func:`make_learner` with
+    `replan_latency`; its blend into a new plan no faster than the description's
+    ``transition_speed``), the impedance law with the task's scene
     (:func:`phri.robots.impedance_controller`) and the safety limits (the robot's ``[safety]``
     tightened by the task's)."""
     for key in ("thresholds", "detector_bias"):
@@ -394,10 +408,12 @@ def _set_up(
     # Independent streams for the person and the sensor: the same seed gives the same person (their
     # own draws) whatever the sensor does, e.g. under both strategies or another sensor_noise.
     person_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    controls = robot_controls(task, model, config, planner or Planner(task, world))
+    controls = robot_controls(
+        task, model, config, planner or Planner(task, world), replan_latency=config.replan_latency
+    )
     planner = controls.planner
     desired = TimedTrajectory(planner.desired, task.duration)
-    person = Participant(participant_params, desired, task.task_feature, model, person_rng, dt=dt)
+    person = Participant(participant_params, task, model, desired, person_rng, dt=dt)
     bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
     return _Parts(
         planner, controls.learner, controls.controller, controls.limits, person, sensor_rng, bias,

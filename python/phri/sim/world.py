@@ -31,8 +31,10 @@ from phri.exceptions import InvalidParameterError, SimulationError
 
 __all__ = ["CUP_INERTIA", "CUP_MASS", "World", "WorldParams"]
 
-CUP_MASS = 0.3  # kg, the shipped cup.urdf
-CUP_INERTIA = np.diag([0.00037, 0.00037, 0.00024])  # kg·m² about its centre, cup frame axes
+#: The shipped cup's mass [kg] (cup.urdf).
+CUP_MASS = 0.3
+#: The shipped cup's inertia about its centre, in the cup frame's axes [kg·m²].
+CUP_INERTIA = np.diag([0.00037, 0.00037, 0.00024])
 #: The simulated arm's description (its URDF and frame names).
 JACO2 = robots.load("jaco2")
 HAND: str = JACO2.hand_frame  # type: ignore[assignment]
@@ -279,8 +281,9 @@ class World:
     def render(self, path: str | Path, width: int = 480, height: int = 360) -> Path:
         """Writes a PNG of the scene from PyBullet's software renderer."""
         p, c = self.p, self.client
-        view = p.computeViewMatrix([0.9, -1.2, 0.8], [-0.3, 0.0, 0.05], [0, 0, 1], physicsClientId=c)
-        proj = p.computeProjectionMatrixFOV(50, width / height, 0.05, 5.0, physicsClientId=c)
+        # From the front right, far and high enough that the arm stretched up or out stays in view.
+        view = p.computeViewMatrix([1.7, -1.9, 1.5], [-0.15, 0.25, 0.25], [0, 0, 1], physicsClientId=c)
+        proj = p.computeProjectionMatrixFOV(45, width / height, 0.05, 6.0, physicsClientId=c)
         _, _, rgba, _, _ = p.getCameraImage(
             width, height, view, proj, renderer=p.ER_TINY_RENDERER, physicsClientId=c
         )
@@ -292,6 +295,7 @@ class World:
         return path
 
     def close(self) -> None:
+        """Disconnects from PyBullet; closing twice does nothing."""
         if self.client is not None and self.p.isConnected(self.client):
             self.p.disconnect(self.client)
         self.client = None  # type: ignore[assignment]

@@ -1,6 +1,7 @@
-"""Command-line front ends: ``phri study``, ``phri report`` and ``phri questionnaire``.
+"""Command-line front ends: ``phri study``, ``phri report``, ``phri questionnaire`` and
+``phri calibrate``.
 
-``register(subparsers)`` adds the three subcommands to phri's main parser; each sets ``run`` (call
+``register(subparsers)`` adds the four subcommands to phri's main parser; each sets ``run`` (call
 ``args.run(args)``: an exit code; errors are printed as ``phri <command>: error: ...`` and give 2).
 ``python -m phri.study`` runs them without phri's main CLI.
 """
@@ -26,7 +27,7 @@ logger = logging.getLogger(__name__)
 
 _STUDY_KEYS = (
     "participants", "attempts", "seed", "tasks", "familiarization", "duration", "waypoints",
-    "sample_rate", "sensor_noise", "rule",
+    "sample_rate", "sensor_noise", "rule", "population",
 )  # fmt: skip
 
 
@@ -35,7 +36,7 @@ def _names(text: str) -> tuple[str, ...]:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    """Adds ``study``, ``report`` and ``questionnaire`` to `subparsers`."""
+    """Adds ``study``, ``report``, ``questionnaire`` and ``calibrate`` to `subparsers`."""
     s = subparsers.add_parser(
         "study",
         help="run (or resume) the simulated user study into a folder",
@@ -68,6 +69,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     g.add_argument("--sample-rate", type=float, help="torque sampling rate [Hz] (default 10)")
     g.add_argument("--sensor-noise", type=float, help="torque sensor noise [N·m] (default 0.1)")
     g.add_argument("--rule", choices=UPDATE_RULES, help="weight-update rule (default all)")
+    g.add_argument(
+        "--population",
+        help="the simulated participants: a population TOML file (parameter distributions, see "
+        "docs/participant.md) or a shipped population's name (default: default)",
+    )
     x = s.add_argument_group("execution (does not change the results)")
     x.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
                    help="where episodes run (default: a local process pool)")  # fmt: skip
@@ -124,7 +130,44 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--participant", type=int, help="participant shown in the path figure (default: the first)"
     )
     r.add_argument("--task", help="task shown in the path figure (default laptop)")
+    r.add_argument(
+        "--reference",
+        help="reference statistics CSV (the targets format of `phri calibrate`) or a shipped reference "
+        "('corl2017': the paper's study): per cell simulated against reference, and the ratios",
+    )
     r.set_defaults(run=cmd_report)
+
+    c = subparsers.add_parser(
+        "calibrate",
+        help="fit a population of simulated participants to reference statistics",
+        description="Fits a population's parameters (by default the push levels, the off-axis push, the "
+        "patience, the hold and the spread) so that small simulated studies of the targets' tasks match "
+        "the target statistics: Nelder-Mead (scipy) on common random numbers (the same people and "
+        "episode seeds for every candidate). TARGETS is a CSV with a row per task and strategy (task, "
+        "strategy, effort, interaction_time, effort_per_sample, optional *_sd) and optional pooled F rows "
+        "(see docs/participant.md), or 'corl2017'. Prints target against achieved; a calibration that "
+        "misses a target by more than --tolerance says which and by how much, writes nothing (unless "
+        "--accept-misses) and exits with 1. Run it with `nice` on a shared machine.",
+    )
+    c.add_argument("targets", help="targets CSV, or a shipped reference name (corl2017)")
+    c.add_argument("--out", type=Path, required=True, help="the population TOML to write (must not exist)")
+    c.add_argument(
+        "--population", help="starting population: a TOML file or a shipped name (default: default)"
+    )
+    c.add_argument("--participants", type=int, default=5, help="participants per candidate (default 5)")
+    c.add_argument("--attempts", type=int, default=1, help="attempts per task and strategy (default 1)")
+    c.add_argument("--seed", type=int, default=0, help="seed of the people and the episodes (default 0)")
+    c.add_argument("--budget", type=int, default=80, help="most candidates evaluated (default 80)")
+    c.add_argument("--free", type=_names, help="comma-separated quantities to fit, 'parameter.key' or "
+                   "'spread' (default max_force.median,max_torque.median,off_axis.median,patience.median,"
+                   "hold.median,spread)")  # fmt: skip
+    c.add_argument("--tolerance", type=float, default=0.2,
+                   help="a target is met within this relative difference (default 0.2)")  # fmt: skip
+    c.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    c.add_argument("--accept-misses", action="store_true",
+                   help="write the population even if it misses targets (recorded in it)")  # fmt: skip
+    c.add_argument("--no-progress", action="store_true", help="no progress bar (shown only on a terminal)")
+    c.set_defaults(run=cmd_calibrate)
 
     q = subparsers.add_parser(
         "questionnaire",
@@ -358,6 +401,7 @@ def cmd_report(args: argparse.Namespace) -> int:
             questionnaire=args.questionnaire,
             participant=args.participant,
             task=args.task,
+            reference=args.reference,
         )
     except PhriError as e:
         return _fail("report", e)
@@ -410,8 +454,61 @@ def cmd_questionnaire(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from phri._extras import check_part
+
+    try:
+        check_part("a study")
+        from phri.sim.participant import load_population
+        from phri.study.calibrate import (
+            DEFAULT_FREE,
+            CalibrationError,
+            CalibrationSettings,
+            calibrate,
+            write_population,
+        )
+        from phri.study.targets import read_targets
+
+        if args.out.exists():
+            raise FileExistsError(f"{args.out} exists; a population, once written, is never overwritten")
+        targets = read_targets(args.targets)
+        start = load_population(args.population) if args.population else None
+        settings = CalibrationSettings(
+            participants=args.participants, attempts=args.attempts, seed=args.seed, budget=args.budget,
+            free=args.free or DEFAULT_FREE, tolerance=args.tolerance, workers=args.workers,
+        )  # fmt: skip
+        result = calibrate(
+            targets, start, settings, progress=not args.no_progress and not getattr(args, "quiet", 0)
+        )
+        print(result.table())
+        minutes, seconds = divmod(result.elapsed, 60)
+        print(f"{result.evaluations} candidates in {int(minutes)} min {seconds:.0f} s; loss "
+              f"{result.start.loss:.4g} at the start, {result.best.loss:.4g} at the best")  # fmt: skip
+        command = (
+            " ".join(["phri", "calibrate", *sys.argv[2:]])
+            if sys.argv[1:2] == ["calibrate"]
+            else (f"phri calibrate {args.targets} --out {args.out}")
+        )
+        try:
+            path = write_population(result, args.out, command=command, accept_misses=args.accept_misses)
+        except CalibrationError as e:
+            print(f"phri calibrate: {e}", file=sys.stderr)
+            return 1
+    except (PhriError, ImportError) as e:
+        return _fail("calibrate", e)
+    except FileExistsError as e:
+        return _fail("calibrate", e)
+    except OSError as e:
+        return file_error("calibrate", e)
+    print(
+        ("population written (targets missed, as asked): " if not result.reached else "population: ")
+        + str(path)
+    )
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m phri.study {study,report,questionnaire} ...`` (with phri's global options)."""
+    """``python -m phri.study {study,report,questionnaire,calibrate} ...`` (with phri's global options)."""
     from phri.cli import add_global_options, configure_logging
 
     parser = argparse.ArgumentParser(prog="python -m phri.study", description="phri's user study")

@@ -90,6 +90,7 @@ class LiveRunner:
         self._total = config.episodes
 
     def planner(self, task: str) -> Planner:
+        """The planner of `task` (a key of the study's tasks), made once and reused by its episodes."""
         if task not in self._planners:
             from phri._phri import Robot
 
@@ -100,6 +101,7 @@ class LiveRunner:
     # -- the protocol ------------------------------------------------------------------------------
 
     def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
+        """Each of `specs` in turn (:meth:`episode`), its outcome as it is recorded."""
         for spec in specs:
             yield self.episode(spec)
 
@@ -210,6 +212,7 @@ class LiveRunner:
         self._ask(f"{prompt} ({PAUSE}: pause)")
 
     def close(self) -> None:
+        """Drops the planners made for the study's tasks (each episode connects to the arm itself)."""
         self._planners.clear()
 
 

@@ -47,6 +47,7 @@ __all__ = [
     "make_backend",
 ]
 
+#: The backends a study can run its episodes on.
 BACKENDS = ("serial", "process", "ray")
 
 #: One thread per worker for every common BLAS/OpenMP runtime.
@@ -66,9 +67,13 @@ class Backend(Protocol):
 
     workers: int
 
-    def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]: ...
+    def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
+        """Simulates `specs`, yielding each outcome as it finishes."""
+        ...
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Stops the workers; idempotent."""
+        ...
 
 
 def default_workers() -> int:
@@ -105,10 +110,12 @@ class SerialBackend:
         self.runner = EpisodeRunner(config, driver_tasks(config, tasks), log_width)
 
     def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
+        """Simulates `specs` one after the other in this process."""
         for spec in specs:
             yield self.runner.run(spec)
 
     def close(self) -> None:
+        """Closes the simulator."""
         self.runner.close()
 
 
@@ -200,6 +207,7 @@ class ProcessBackend:
         return self._pool
 
     def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
+        """Simulates `specs` on the worker processes, yielding outcomes in completion order."""
         todo = deque(specs)
         running: set[Future[Outcome]] = set()
         # Workers are spawned lazily by submit(): keep the variables set while submitting.
@@ -223,6 +231,7 @@ class ProcessBackend:
             return [f.result() for f in [pool.submit(_worker_environment) for _ in range(self.workers)]]
 
     def close(self) -> None:
+        """Shuts the pool down, cancelling the episodes not started; idempotent."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
@@ -287,6 +296,7 @@ class RayBackend:
         ]
 
     def run(self, specs: Iterable[EpisodeSpec]) -> Iterator[Outcome]:
+        """Simulates `specs` on the Ray actors, yielding outcomes in completion order."""
         ray = self.ray
         todo = deque(specs)
         idle = deque(a for a in self.actors for _ in range(2))  # two queued episodes per actor
@@ -305,9 +315,11 @@ class RayBackend:
                 ray.cancel(ref)
 
     def worker_environments(self) -> list[dict[str, str]]:
+        """The thread variables each actor sees (one per actor, for checks)."""
         return self.ray.get([a.environment.remote() for a in self.actors])
 
     def close(self) -> None:
+        """Ends the actors."""
         for actor in self.actors:
             self.ray.kill(actor)
         self.actors = []

@@ -5,9 +5,10 @@ strategies is counterbalanced (a Latin square: participant p starts with strateg
 strategy a participant does the familiarization task and then tasks 1-3, each attempted twice.
 
 Every random number is derived from the study seed with :class:`numpy.random.SeedSequence`, keyed by
-what it is for, never by when it is drawn: participant p's parameters from ``(seed, 0, p)``, and an
-episode's seed from ``(seed, 1, p, crc32(strategy), crc32(task), attempt)``. So results do not depend on
-execution order, on the backend, or on which other tasks the study contains.
+what it is for, never by when it is drawn: participant p's parameters from
+``(seed, 0, p, crc32(parameter))`` (quantiles of the study's population), and an episode's seed
+from ``(seed, 1, p, crc32(strategy), crc32(task), attempt)``. So results do not depend on execution
+order, on the backend, or on which other tasks the study contains.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import json
 import sys
 import zlib
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,7 @@ from phri._validate import finite, is_integer, must_be
 from phri.config import STUDY_TASKS, Task, load_task, task_names
 from phri.exceptions import ConfigError, UnknownNameError
 from phri.sim.episode import STRATEGIES, EpisodeConfig
-from phri.sim.participant import ParticipantParams
+from phri.sim.participant import ParticipantParams, Population, default_population, load_population
 from phri.study.errors import StudyConfigError
 
 if sys.version_info >= (3, 11):
@@ -47,7 +48,6 @@ __all__ = [
     "strategy_order",
 ]
 
-_PARTICIPANT_KEY = 0
 _EPISODE_KEY = 1
 
 
@@ -55,6 +55,7 @@ _EPISODE_KEY = 1
 #: minutes before anything happened. 10,000 participants × 2 attempts × 4 tasks ×
 #: 2 strategies is 160,000 episodes, about 17 hours on 2 cores; run bigger designs as several studies.
 MAX_PARTICIPANTS = 10_000
+#: Most attempts per task and strategy a study may have (see MAX_PARTICIPANTS).
 MAX_ATTEMPTS = 100
 
 
@@ -86,6 +87,9 @@ class StudyConfig:
     sensor_noise: float = 0.1
     #: Weight-update rule: "all" (the paper), "max" or "confidence" (EpisodeConfig.rule).
     rule: str = "all"
+    #: Who the simulated participants are: their parameters' distributions (a population file's
+    #: contents; the study keeps them, so a resumed study draws the same people).
+    population: Population = field(default_factory=default_population)
 
     def __post_init__(self) -> None:
         def fail(key: str, expected: str, got: Any) -> Exception:
@@ -142,10 +146,13 @@ class StudyConfig:
             EpisodeConfig(sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule)
         except ValueError as e:
             raise StudyConfigError(f"study: {e}") from None
+        if not isinstance(self.population, Population):  # a name, a path or a table (as to_dict gives)
+            object.__setattr__(self, "population", _population(self.population, "study", None))
 
     # -- the study's parts ------------------------------------------------------------------------
 
     def episode_config(self, strategy: str) -> EpisodeConfig:
+        """How the study runs an episode of `strategy` (its sample rate, sensor noise and rule)."""
         return EpisodeConfig(
             strategy=strategy, sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule
         )
@@ -182,18 +189,25 @@ class StudyConfig:
 
     @property
     def episodes(self) -> int:
+        """How many episodes the study has: participants × strategies × tasks × attempts."""
         return self.participants * len(self.strategies) * len(self.tasks) * self.attempts
 
     # -- serialisation ------------------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
+        """The config as JSON-ready values (study.json's ``config``)."""
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         d["tasks"], d["strategies"] = list(self.tasks), list(self.strategies)
+        d["population"] = self.population.to_dict()
         return d
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], source: str = "study") -> StudyConfig:
-        """From a mapping such as a parsed study.json or study TOML; unknown keys are errors."""
+    def from_dict(
+        cls, data: Mapping[str, Any], source: str = "study", base_dir: Path | None = None
+    ) -> StudyConfig:
+        """From a mapping such as a parsed study.json or study TOML; unknown keys are errors.
+        ``population`` is a shipped population's name, a population file's path (relative to
+        `base_dir` if given) or a population table."""
         if not isinstance(data, Mapping):
             raise StudyConfigError(
                 f"{source}: expected a table of study parameters, got {type(data).__name__}"
@@ -212,6 +226,8 @@ class StudyConfig:
                 kwargs[key] = tuple(kwargs[key])
         if kwargs.get("familiarization") == "":
             kwargs["familiarization"] = None
+        if "population" in kwargs:
+            kwargs["population"] = _population(kwargs["population"], source, base_dir)
         try:
             return cls(**kwargs)
         except StudyConfigError as e:
@@ -232,7 +248,7 @@ class StudyConfig:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:
             raise StudyConfigError(f"{path}: not valid TOML ({e})") from None
-        return cls.from_dict(data, str(path))
+        return cls.from_dict(data, str(path), path.parent)
 
     def task_digests(self) -> dict[str, str]:
         """A SHA-256 per task of what the task file said (after overrides), so that a resumed
@@ -258,6 +274,24 @@ def _scene_object_record(o: Any) -> dict[str, Any]:
     return values
 
 
+def _population(value: Any, source: str, base_dir: Path | None) -> Population:
+    """The study's `population` key: a name, a path or a table (errors name the study's source)."""
+    where = "study: population" if source == "study" else f"{source}: key 'population'"
+    if isinstance(value, Population):
+        return value
+    try:
+        if isinstance(value, str | Path):
+            path = Path(value)
+            if base_dir is not None and _is_path(str(value)) and not path.is_absolute():
+                path = base_dir / path
+            return load_population(path if _is_path(str(value)) else str(value))
+        if isinstance(value, Mapping):
+            return Population.from_dict(value, where)
+    except (ConfigError, UnknownNameError) as e:
+        raise StudyConfigError(str(e) if isinstance(value, Mapping) else f"{where}: {e}") from None
+    raise StudyConfigError(f"{where} must be a population name, a file path or a table, got {value!r}")
+
+
 def _is_path(spec: str) -> bool:
     return spec.endswith(".toml") or "/" in spec or "\\" in spec
 
@@ -280,9 +314,11 @@ class EpisodeSpec:
 
     @property
     def key(self) -> tuple[int, str, str, int]:
+        """(participant, strategy, task, attempt): what identifies the episode in the results."""
         return (self.participant, self.strategy, self.task, self.attempt)
 
     def log_name(self, width: int = 2) -> str:
+        """The file name of the episode's log, its participant number padded to `width` digits."""
         return f"p{self.participant:0{width}d}_{self.strategy}_{self.task}_a{self.attempt}.npz"
 
 
@@ -298,10 +334,14 @@ def episode_seed(study_seed: int, participant: int, strategy: str, task: str, at
     return int(ss.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))  # 63 bits: fits an int64 column
 
 
-def participant_params(study_seed: int, participant: int) -> ParticipantParams:
-    """Participant `participant`'s (1-based) simulated behaviour, drawn from the study seed."""
-    ss = np.random.SeedSequence(study_seed, spawn_key=(_PARTICIPANT_KEY, participant))
-    return ParticipantParams.draw(np.random.default_rng(ss))
+def participant_params(
+    study_seed: int, participant: int, population: Population | None = None
+) -> ParticipantParams:
+    """Participant `participant`'s (1-based) simulated behaviour, drawn from `population` (default:
+    phri's default population) with the study seed: per parameter a uniform number keyed by
+    ``(seed, 0, participant, crc32(parameter))`` (Population.draw), so the same seed gives the same
+    person under every strategy, and the same quantiles in every population."""
+    return (population or default_population()).draw(study_seed, participant)
 
 
 def strategy_order(config: StudyConfig, participant: int) -> tuple[str, ...]:

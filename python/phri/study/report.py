@@ -30,6 +30,7 @@ from phri.study.errors import StudyConfigError, StudyFileError
 from phri.study.markdown import NOT_ESTIMABLE, number, p_value
 from phri.study.protocol import StudyConfig
 from phri.study.results import load_results, read_manifest
+from phri.study.targets import MEASURES, Targets, compare, read_targets
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -230,6 +231,7 @@ def write_report(
     questionnaire: str | Path | None = None,
     participant: int | None = None,
     task: str | None = None,
+    reference: str | Path | None = None,
 ) -> Path:
     """Analyses the study in `run_dir` and writes the report into a new folder, `out` (default
     ``RUN_DIR/report``) or, if that exists, ``OUT-2``, ``OUT-3``, ...; returns the path of report.md.
@@ -237,7 +239,9 @@ def write_report(
     `questionnaire`: a Table 1 answers CSV (default: ``RUN_DIR/questionnaire.csv`` if present).
     `participant`, `task`: the sample shown in the path figure (default: participant 1, laptop); a
     participant or task the study does not have is a :class:`StudyConfigError`; without the
-    ``phri[study]`` extra, a :class:`~phri.exceptions.MissingExtraError`."""
+    ``phri[study]`` extra, a :class:`~phri.exceptions.MissingExtraError`. `reference`: a reference
+    statistics CSV (:mod:`phri.study.targets`) or a shipped reference's name; the report then compares
+    each of its cells with the study's (simulated, reference, ratio), also as ``reference.csv``."""
     check_part("the report")  # before any work (pandas was needed to import this module)
     run_dir = Path(run_dir)
     found = read_manifest(run_dir)
@@ -247,6 +251,10 @@ def write_report(
         )
     config, manifest = found
     _check_sample(config, participant, task)
+    targets = None
+    if reference is not None:
+        targets = read_targets(reference)
+        targets.check_tasks(config.task_names(), "the study's tasks")
     if questionnaire is not None and not Path(questionnaire).exists():
         raise StudyFileError(f"{questionnaire}: questionnaire file not found")
     raw = load_results(run_dir)
@@ -257,7 +265,7 @@ def write_report(
     staging = target.parent / f".{target.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
     staging.mkdir()
     try:
-        _write(staging, run_dir, config, manifest, raw, questionnaire, participant, task)
+        _write(staging, run_dir, config, manifest, raw, questionnaire, participant, task, targets)
         final = _place(staging, target)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -548,6 +556,33 @@ def _questionnaire(out: Path, qpath: Path, config: StudyConfig) -> list[str]:
     ]
 
 
+def _reference(out: Path, targets: Targets, stats: _Statistics, config: StudyConfig) -> list[str]:
+    """The comparison with the reference statistics: a Markdown section, also as reference.csv."""
+    rows = compare(targets, stats.data, config.sample_rate)
+    table = pd.DataFrame(rows, columns=["task", "strategy", "statistic", "reference", "simulated", "ratio"])
+    write_atomic(out / "reference.csv", table.to_csv(index=False).encode("utf-8"))
+    shown = table.copy()
+    shown["statistic"] = [
+        f"{s} [{MEASURES[s]}]" if s in MEASURES else s.replace("_sd", " SD") for s in shown["statistic"]
+    ]
+    pooled = list(targets.pooled)
+    note = (
+        " A pooled row is the strategy effect's F in the factorial ANOVA over those tasks' trials (the "
+        f"reference's F(1, {pooled[0].df_error:g}) against this study's)."
+        if pooled
+        else ""
+    )
+    return [
+        "## Against the reference",
+        "",
+        f"Reference statistics `{targets.source}`: per task and strategy the mean (and SD where given) of "
+        "the simulated trials against the reference, and their ratio (simulated / reference). Effort per "
+        "sample is the mean effort over the mean number of interaction samples." + note,
+        "",
+        _md(shown, {"ratio": lambda v: number(v, 2)}),
+    ]
+
+
 def _write(
     out: Path,
     run_dir: Path,
@@ -557,11 +592,15 @@ def _write(
     questionnaire: str | Path | None,
     participant: int | None,
     task: str | None,
+    targets: Targets | None = None,
 ) -> None:
     """Writes every file of the report into the (new, empty) folder `out`: the statistics as CSV and
     LaTeX, the figures as PNG and PDF, and report.md (each file atomically)."""
     stats = _statistics(raw, config)
     tables = _write_tables(out, stats)
+    reference_lines = [] if targets is None else _reference(out, targets, stats, config)
+    if targets is not None:
+        tables.append("reference.csv")
     warnings = [*_design_warnings(stats, config), *_log_warnings(run_dir, raw)]
     for w in warnings:
         logger.warning("%s: %s", run_dir, w)
@@ -570,6 +609,7 @@ def _write(
         *_introduction(run_dir, config, manifest, raw),
         *_warnings_md(warnings),
         *_statistics_md(stats, config),
+        *reference_lines,
         *_figures(out, run_dir, config, raw, stats, participant, task),
         *_questionnaire(out, qpath, config),
     ]

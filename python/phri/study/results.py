@@ -298,7 +298,10 @@ class ResultStore:
         (self.run_dir / LOGS).mkdir(exist_ok=True)
         people = io.StringIO()
         writer = csv.writer(people, lineterminator="\n")
-        params = [participant_params(self.config.seed, p) for p in range(1, self.config.participants + 1)]
+        params = [
+            participant_params(self.config.seed, p, self.config.population)
+            for p in range(1, self.config.participants + 1)
+        ]
         fields = list(params[0].as_dict())
         writer.writerow(["participant", "strategy_order", *fields])
         for p, pp in enumerate(params, start=1):
@@ -349,6 +352,7 @@ class ResultStore:
 
     @property
     def complete(self) -> bool:
+        """Whether every scheduled episode has its row."""
         return len(self.rows) == len(self.specs)
 
     # -- writing ---------------------------------------------------------------------------------
@@ -385,6 +389,7 @@ class ResultStore:
                 write_atomic(self.run_dir / RESULTS_CSV, text.encode("utf-8"))
 
     def close(self) -> None:
+        """Releases the study folder's lock."""
         _unlock(self._lock_fd)
         self._lock_fd = None
 

@@ -39,6 +39,7 @@ class StudyRun:
 
     @property
     def done(self) -> int:
+        """Episodes recorded: those resumed from an earlier run plus those run now."""
         return self.resumed + self.ran
 
 

@@ -49,18 +49,21 @@ class EpisodeRunner:
 
     @property
     def world(self) -> World:
+        """The simulator, started on first use."""
         if self._world is None:
             self._world = World()
         return self._world
 
     def planner(self, task: str) -> Planner:
+        """The planner of `task`, made once."""
         if task not in self._planners:
             self._planners[task] = Planner(self.tasks[task], self.world)
         return self._planners[task]
 
     def participant(self, p: int) -> ParticipantParams:
+        """Participant `p`'s parameters, drawn from the study seed once."""
         if p not in self._participants:
-            self._participants[p] = participant_params(self.config.seed, p)
+            self._participants[p] = participant_params(self.config.seed, p, self.config.population)
         return self._participants[p]
 
     def run(self, spec: EpisodeSpec) -> Outcome:
@@ -71,7 +74,7 @@ class EpisodeRunner:
         name = spec.log_name(self.log_width)
         try:
             result, error = simulate_episode(
-                task, self.world, self.participant(spec.participant),
+                task, self.world, self.participant(spec.participant).for_attempt(spec.attempt),
                 self.config.episode_config(spec.strategy), seed=spec.seed, planner=self.planner(spec.task),
             )  # fmt: skip
         except SimulationError as e:  # before the simulation started: no log
@@ -86,6 +89,7 @@ class EpisodeRunner:
         return Outcome(spec, row, encode_log(result.log_arrays))
 
     def close(self) -> None:
+        """Closes the simulator and forgets the planners."""
         if self._world is not None:
             self._world.close()
             self._world = None

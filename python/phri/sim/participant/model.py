@@ -1,0 +1,129 @@
+"""The simulated participant: perception, decision and arm put together, judged at the person's own
+rate and called every control tick.
+
+``Participant(params, task, robot, desired, rng).wrench(t, q)`` is all a control loop needs: the
+person's push at the robot's hand frame (force [N], torque [N·m], world frame) for joint positions
+`q` [rad] at time `t` [s], or None while nobody touches the arm. It needs only the robot model, `q`
+and `t` (no simulator), so the same person drives PyBullet's JACO2 and franky-sim's FR3.
+
+The person acts on what they saw ``delay`` seconds ago (visuomotor delay): they grab, let go and aim
+their hand by that view. Their hand goes where they saw the cup plus the move that would have fixed
+it then; so while the robot carries the cup on, their arm's spring also pulls it back towards where
+they saw it (a hand on a moving robot drags on it), and every push starts late.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from phri._phri import Robot, TimedTrajectory
+from phri.config import Task
+from phri.exceptions import InvalidParameterError
+from phri.sim.participant.arm import HumanArm
+from phri.sim.participant.params import ParticipantParams
+from phri.sim.participant.perception import Correction, TaskView
+from phri.sim.participant.persistence import Persistence, State
+
+__all__ = ["Participant", "Sight"]
+
+
+@dataclass(frozen=True)
+class Sight:
+    """What the person saw at one look: when [s], the cup's pose (4×4), each watched feature."""
+
+    t: float
+    pose: np.ndarray
+    corrections: list[Correction]
+
+
+def _rotation_between(seen: np.ndarray, now: np.ndarray) -> np.ndarray:
+    """The rotation vector [rad] (world frame) that turns orientation `now` into `seen` (3×3 each)."""
+    a = seen @ now.T
+    vee = 0.5 * np.array([a[2, 1] - a[1, 2], a[0, 2] - a[2, 0], a[1, 0] - a[0, 1]])
+    s = float(np.linalg.norm(vee))
+    c = (float(np.trace(a)) - 1.0) / 2.0
+    angle = math.atan2(s, c)
+    return vee * (angle / s) if s > 1e-12 else vee
+
+
+class Participant:
+    """One person correcting `robot` executing `task`, having been shown the `desired` behaviour (the
+    plan for the true weights: waypoints over the task's duration, or a TimedTrajectory).
+
+    `rng` is the person's own random stream (tremor, how they aim). `dt` [s] is the control period the
+    loop calls :meth:`wrench` at; the person re-judges at ``params.rate`` and holds their push in
+    between. For a second or later attempt pass ``params.for_attempt(attempt)``."""
+
+    def __init__(
+        self,
+        params: ParticipantParams,
+        task: Task,
+        robot: Robot,
+        desired: TimedTrajectory | np.ndarray,
+        rng: np.random.Generator,
+        dt: float = 1e-3,
+        hand: str | None = None,
+    ) -> None:
+        hand = hand or robot.hand_frame
+        if hand is None:
+            raise InvalidParameterError(f"hand: robot '{robot.name}' declares no hand frame; pass hand=")
+        if not (math.isfinite(dt) and dt > 0):
+            raise InvalidParameterError(f"dt must be a control period > 0 s, got {dt!r}")
+        self.params, self.robot, self.hand, self.dt = params, robot, hand, dt
+        self.period = 1.0 / params.rate
+        self.view = TaskView(task, robot, desired)
+        self.arm = HumanArm(params, rng, self.period)
+        self.persistence = Persistence(params, self.period)
+        self.next_look = 0.0
+        self.held: tuple[np.ndarray, np.ndarray] | None = None
+        #: What the person saw at their recent looks, newest last (as far back as their delay).
+        self.sights: deque[Sight] = deque()
+
+    @property
+    def state(self) -> State:
+        return self.persistence.state
+
+    @property
+    def seen(self) -> Sight | None:
+        """The view the person acts on now: their look ``delay`` seconds ago (or their first)."""
+        return self.sights[0] if self.sights else None
+
+    def errors(self, corrections: list[Correction]) -> list[float]:
+        """Each watched feature's error in units of the person's tolerance (1: just visible)."""
+        p = self.params
+        return [max(c.translation / p.tolerance, c.rotation / p.tilt_tolerance) for c in corrections]
+
+    def wrench(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The push at time `t` [s] for joint positions `q` [rad], or None when not touching the arm."""
+        if t < self.next_look:
+            return self.held
+        self.next_look = t + self.period - 1e-9
+        self.held = self._judge(t, q)
+        return self.held
+
+    def _judge(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        corrections = self.view.look(q)
+        now = self.view.pose.copy()
+        self.sights.append(Sight(t, now, corrections))
+        # Keep the newest look at least `delay` old, and everything after it.
+        while len(self.sights) > 1 and self.sights[1].t <= t - self.params.delay + 1e-9:
+            self.sights.popleft()
+        seen = self.sights[0]
+        errors = self.errors(seen.corrections)
+        visible = any(e > 1.0 and c.fixable for e, c in zip(errors, seen.corrections, strict=True))
+        fixed = all(e < self.params.release for e in errors)
+        if not self.persistence.update(t, visible, fixed):
+            return self.arm.push(None)
+        # Several features at once: the moves of every feature still wrong add up.
+        move = np.zeros(6)
+        for e, c in zip(errors, seen.corrections, strict=True):
+            if e >= self.params.release and c.fixable:
+                move += c.move
+        lag = np.concatenate(
+            [seen.pose[:3, 3] - now[:3, 3], _rotation_between(seen.pose[:3, :3], now[:3, :3])]
+        )
+        return self.arm.push(move, lag)

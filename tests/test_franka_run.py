@@ -129,6 +129,59 @@ def test_a_bad_transition_speed_is_a_clear_error(tmp_path: Path, value: str) -> 
         load(tmp_path / "robot.toml")
 
 
+class _StuckFR3:
+    """An FR3 held still (by friction, say) at `q`: the loop's commands are recorded."""
+
+    robot, period, gravity_compensated = FR3, 1e-3, True
+
+    def __init__(self, q: np.ndarray) -> None:
+        self.q, self.k, self.commands = q, 0, []
+
+    def _state(self) -> RobotState:
+        return RobotState(t=self.k * self.period, q=self.q.copy(), qd=np.zeros(7), tau_ext=np.zeros(7))
+
+    def start(self, q_start: np.ndarray) -> RobotState:
+        return self._state()
+
+    def read(self) -> RobotState:
+        self.k += 1
+        return self._state()
+
+    def write(self, tau: np.ndarray) -> None:
+        self.commands.append(tau.copy())
+
+    def stop(self) -> None:
+        pass
+
+
+def test_on_the_fr3_the_loop_holds_the_wrist_with_the_gains_of_its_description() -> None:
+    """The loop's explicit law (a real arm's) pushes the wrist back with K·e, libfranka's examples'
+    stiffness; the implicit law, which divides by phri's model's inertia (no rotors: joint 7's link
+    alone, about 0.002 kg·m²), would push with about a tenth of it, which left franky-sim's FR3
+    0.045 rad off its start against the joint's friction (0.25 N·m) after the move."""
+    from phri.control import ControlLoop
+    from phri.franka.move import JointMove
+    from phri.robots import impedance_controller
+
+    start = load_task("fr3_table").start
+    off = start + np.array([0, 0, 0, 0, 0, 0, 0.044])
+    commands = {}
+    for implicit in (False, True):
+        arm = _StuckFR3(off)
+        hold = JointMove(start, start, 0.001, settle=0.02)
+        controller = impedance_controller(FR3, "fr3")
+        loop = ControlLoop(arm, hold, controller, LIMITS, implicit=implicit)  # type: ignore[arg-type]
+        result = loop.run(start, hold.total, check=True)
+        assert result.stop is None
+        commands[implicit] = arm.commands[-1]  # the torque less g(q): the spring's alone
+    np.testing.assert_allclose(commands[False][6], -50.0 * 0.044, rtol=1e-6)
+    assert abs(commands[True][6]) < 0.2 * 50.0 * 0.044
+    with pytest.raises(phri.exceptions.InvalidParameterError, match="implicit must be True or False"):
+        ControlLoop(_StuckFR3(start), hold, controller, LIMITS, implicit=1)  # type: ignore[arg-type]
+    with pytest.raises(phri.exceptions.InvalidParameterError, match="duration must be a finite time > 0 s"):
+        JointMove(start, start, 0.0)
+
+
 def test_the_move_is_minimum_jerk_and_peaks_at_its_speed() -> None:
     task = load_task("fr3_table")
     move = plan_move(FR3, LIMITS, task.goal, task.start, scene=task.scene)

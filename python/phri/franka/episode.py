@@ -203,6 +203,7 @@ class FrankaEpisode:
         trace = run_on_loop(
             task, self.backend, controls.learner, controls.controller, controls.limits, self._push_of,
             log_rate=self.config.log_rate, hand=self.backend.robot.hand_frame or "", on_tick=ticks,
+            implicit=False,  # a real arm (or franky-sim's, rotors modelled): libfranka's explicit law
         )  # fmt: skip
         motion_seconds = time.perf_counter() - motion_began
         if trace.rows == 0:  # nothing ran: the robot refused control, or never answered

@@ -68,6 +68,13 @@ class JointMove:
     duration: float
     settle: float = SETTLE_TIME
 
+    def __post_init__(self) -> None:
+        for name, value, low in (("duration", self.duration, 0.0), ("settle", self.settle, None)):
+            ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+            if not ok or (value <= 0 if low is not None else value < 0):
+                bound = "> 0" if low is not None else ">= 0"
+                raise InvalidParameterError(f"{name} must be a finite time {bound} s, got {value!r}")
+
     @property
     def total(self) -> float:
         """The motion and the settling [s]."""
@@ -213,7 +220,12 @@ def move_to(
         if on_tick is not None:
             on_tick(k, state, row)
 
-    loop = ControlLoop(backend, cast(Learner, cast(Any, move)), controller, limits, on_tick=hook)
+    # The explicit law, as on every real arm (see ControlLoop's `implicit`): the implicit one, with
+    # phri's model that has no rotor inertia, left the FR3's wrist a 0.045 rad dead band against
+    # franky-sim's joint friction.
+    loop = ControlLoop(
+        backend, cast(Learner, cast(Any, move)), controller, limits, on_tick=hook, implicit=False
+    )
     result = loop.run(move.q_from, move.total, check=False)
     if result.error is not None:
         return result, result.error

@@ -460,6 +460,7 @@ def run_on_loop(
     log_rate: float,
     hand: str,
     on_tick: TickHook | None = None,
+    implicit: bool = True,
 ) -> EpisodeTrace:
     """The episode of `task` on :class:`phri.control.ControlLoop` over `backend`: the learner
     updates its reference from the measured torque, the impedance law tracks it and the safety
@@ -467,8 +468,9 @@ def run_on_loop(
 
     At each log row `push_of(state)` gives the person's wrench at the hand (logged as ``push``);
     while it is None the hand's distance from its reference (frame `hand`) counts towards the
-    tracking error. `on_tick` is the loop's tick hook, called after this one. A safety stop or an
-    error ends the episode and is kept in the trace, with the log so far."""
+    tracking error. `on_tick` is the loop's tick hook, called after this one. `implicit`: the
+    loop's impedance law (:class:`phri.control.ControlLoop`; False on a real arm). A safety stop or
+    an error ends the episode and is kept in the trace, with the log so far."""
     model = backend.robot
     tracking = {"error": 0.0}
 
@@ -483,7 +485,9 @@ def run_on_loop(
         if on_tick is not None:
             on_tick(k, state, row)
 
-    loop = ControlLoop(backend, learner, controller, limits, log_rate=log_rate, on_tick=hook)
+    loop = ControlLoop(
+        backend, learner, controller, limits, log_rate=log_rate, on_tick=hook, implicit=implicit
+    )
     #: The person's wrench at the hand (force [N], torque [N·m]) at each log row; zero while nobody
     #: touches it. As many rows as the loop's log can hold (the task, and a stop's hold).
     push_rows = np.zeros((int((task.duration + loop.hold_time) / loop.log_period) + 4, 6))

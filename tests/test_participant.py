@@ -150,7 +150,14 @@ def test_the_arm_is_a_spring_that_builds_up_and_pushes_imprecisely() -> None:
     for _ in range(100):
         force, _ = arm.push(move)
     np.testing.assert_allclose(force, [0.0, 0.0, -10.0], atol=1e-3)  # compliant: 200 N/m × 5 cm
-    assert arm.push(None) is None and not arm.force.any()  # hands off: the push is gone
+    # Letting go takes as long as pushing: the push relaxes with the same time constant (a hand that
+    # sprang open would let the deflected arm snap back past its joint-velocity limits), then is gone.
+    released = [arm.push(None) for _ in range(100)]
+    np.testing.assert_allclose(released[0][0], [0.0, 0.0, -10.0 * math.exp(-0.1)], atol=1e-3)
+    np.testing.assert_allclose(released[9][0], [0.0, 0.0, -10.0 * math.exp(-1.0)], atol=1e-3)  # τ = 0.1 s
+    gone = next(k for k, r in enumerate(released) if r is None)
+    assert 0.4 < gone * 0.01 < 0.6  # below 0.1 N after ln(100) τ = 0.46 s
+    assert all(r is None for r in released[gone:]) and not arm.force.any()
     # Off-axis: a part across the wished direction, of off_axis × the push, new for each bout.
     crooked = HumanArm(dataclasses.replace(p, off_axis=0.5, rise_time=0.0), np.random.default_rng(2), 0.01)
     force, torque = crooked.push(move)

@@ -34,6 +34,7 @@ from hypothesis import strategies as st
 import phri
 from phri.control import ControlLoop, RobotState, SafetyLayer, safety_limits
 from phri.exceptions import NotConvergedError, PhriError, PlanningError
+from phri.robots import impedance_controller
 from phri.robots import load as load_description
 from phri.sim.participant import Participant, ParticipantParams, load_population
 
@@ -656,22 +657,36 @@ TARGETS["load_population.file"] = Target(
 )
 
 
-# Robot descriptions (phri.robots) near the shipped ones, read into the safety layer's limits.
-ROBOT_FOLDER = TASK_FILE.with_name("robot")
-shutil.copytree(Path(str(files("phri") / "robots" / "jaco2")), ROBOT_FOLDER)
+# Robot descriptions (phri.robots) near the shipped ones (each beside a copy of its URDFs), read into
+# the robot, its impedance law and the safety layer's limits for its table task.
+ROBOT_TASKS = {"jaco2": "table", "fr3": "fr3_table"}
+ROBOT_FOLDERS = {r: TASK_FILE.with_name(f"robot-{r}") for r in ROBOT_TASKS}
+for _name, _folder in ROBOT_FOLDERS.items():
+    shutil.copytree(Path(str(files("phri") / "robots" / _name)), _folder)
 
 
-def _robot_description_text(_: Any, *, text: str) -> Any:
-    (ROBOT_FOLDER / "robot.toml").write_text(text, encoding="utf-8", errors="surrogatepass")
-    robot = phri.Robot.from_description(ROBOT_FOLDER / "robot.toml")
-    return safety_limits(robot, load_description(ROBOT_FOLDER / "robot.toml"), phri.load_task("table"))
+def _robot_description_text(_: Any, *, description: tuple[str, str]) -> Any:
+    name, text = description
+    path = ROBOT_FOLDERS[name] / "robot.toml"
+    path.write_text(text, encoding="utf-8", errors="surrogatepass")
+    robot = phri.Robot.from_description(path)
+    loaded = load_description(path)
+    q = (robot.lower_limits.clip(-3, 3) + robot.upper_limits.clip(-3, 3)) / 2
+    torque = impedance_controller(robot, loaded).torque(q, np.zeros(robot.nq), q + 0.01, np.zeros(robot.nq))
+    return safety_limits(robot, loaded, phri.load_task(ROBOT_TASKS[name])), torque
 
 
 TARGETS["robot_description.file"] = Target(
     lambda: None,
     _robot_description_text,
-    {"text": mutated_texts([(files("phri") / "robots" / r / "robot.toml").read_text() for r in ("jaco2",)])},
-    extra={"names": [str(ROBOT_FOLDER / "robot.toml")]},
+    {
+        "description": st.sampled_from(sorted(ROBOT_TASKS)).flatmap(
+            lambda r: mutated_texts([(files("phri") / "robots" / r / "robot.toml").read_text()]).map(
+                lambda text: (r, text)
+            )
+        )
+    },
+    extra={"names": [str(f / "robot.toml") for f in ROBOT_FOLDERS.values()]},
     weight=0.5,
 )
 
@@ -784,6 +799,7 @@ TARGETS["ControlLoop"] = Target(  # a run of at most 50 ticks with a reading gon
         "late_ticks": st.one_of(st.just(3), st.just(3), ints(1, 5)),
         "late_after": st.one_of(st.just(1.5), st.just(1.5), scalars(0, 5)),
         "log_rate": st.one_of(st.just(100.0), st.just(100.0), scalars(0, 1000)),
+        "implicit": st.booleans(),
     },
     weight=0.5,
 )

@@ -98,6 +98,16 @@ def _sim_server(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _run(args: argparse.Namespace) -> int:
+    from phri._extras import require
+
+    require("pylibfranka", "phri run")
+    require("matplotlib", "phri run's figures")
+    from phri.franka.run import run
+
+    return run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``phri`` command's argument parser, with every subcommand."""
     parser = argparse.ArgumentParser(
@@ -127,6 +137,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_arguments(sim_server)
     sim_server.set_defaults(run=_sim_server)
+    from phri.franka.run import add_arguments as add_run_arguments
+
+    run = sub.add_parser(
+        "run",
+        help="one episode on the arm at an address (a real FR3, or `phri sim-server`): the log, "
+        "figures and a summary, as the simulated episodes write them",
+    )
+    add_run_arguments(run)
+    run.set_defaults(run=_run)
     from phri.study.cli import register as register_study
 
     register_study(sub)

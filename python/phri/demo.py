@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from phri import plots
-from phri._phri import Features, TimedTrajectory
+from phri._phri import Features, Robot, TimedTrajectory
 from phri.config import STUDY_TASKS, Task, load_task
 from phri.exceptions import InvalidParameterError
 from phri.sim import (
@@ -40,6 +40,7 @@ __all__ = [
     "DemoResult",
     "check_out",
     "describe_participant",
+    "episode_figures",
     "fresh_folder",
     "frame_times",
     "run_demo",
@@ -204,7 +205,7 @@ def _run(
                 _label_frames(r, task)
                 if on_episode is not None:
                     on_episode(r)
-            _plot(folder, task, planner, world, per_task)
+            episode_figures(folder, task, planner, world.model, per_task)
     return results
 
 
@@ -235,20 +236,24 @@ def _label_frames(result: EpisodeResult, task: Task) -> None:
         plots.label_image(path, f"{task.name} · {result.strategy} · t = {t:.2f} s")
 
 
-def _point_features(task: Task, planner: Planner, world: World) -> Features:
+def _point_features(task: Task, planner: Planner, model: Robot) -> Features:
     """The task's feature measured at single points: a keep-out feature at one point per segment
     (its sum over a segment's sample points would count the same point several times on a dense
     log), so that segment i of a path gives the feature's value at waypoint i."""
     spec = task.features[task.task_index].feature()
     if isinstance(spec, dict) and "keep_out" in spec:
         spec = {**spec, "samples": 1}
-    return Features(world.model, [spec], scene=task.scene, frame=planner.features.frame)
+    return Features(model, [spec], scene=task.scene, frame=planner.features.frame)
 
 
-def _plot(
-    folder: Path, task: Task, planner: Planner, world: World, results: dict[str, EpisodeResult]
+def episode_figures(
+    folder: Path, task: Task, planner: Planner, model: Robot, results: dict[str, EpisodeResult]
 ) -> list[Path]:
-    """The task's figures, drawn from the episodes' results in memory (their `log_arrays`)."""
+    """The figures of `task`'s episodes on `model` (planned by `planner`), one per strategy in
+    `results` (one or both), drawn from their results in memory (their `log_arrays`):
+    ``force_<task>.png``, ``path_<task>.png``, ``feature_<task>.png`` and ``weights_<task>.png``
+    (the learning episode's weights, else the only episode's) in `folder`. The demo and ``phri run``
+    draw these."""
     logs = {strategy: r.log_arrays for strategy, r in results.items()}
     # Fig. 1: the person's effort over time.
     force = plots.plot_effort(
@@ -263,7 +268,7 @@ def _plot(
         title=task.title, keep_outs=planner.features.keep_out_circles,
     )  # fmt: skip
     # The taught feature at the cup over time (the log rate), against the desired behaviour's.
-    point = _point_features(task, planner, world)
+    point = _point_features(task, planner, model)
     t_log = next(iter(logs.values()))["t"]
     desired_q = TimedTrajectory(planner.desired, task.duration).sample_many(t_log)[0]
     series = {s: (a["t"][1:], point.per_segment(a["q"])[:, 0]) for s, a in logs.items()}
@@ -273,7 +278,7 @@ def _plot(
     )
     # Every learned weight over time.
     learned = [i for i, f in enumerate(task.features) if f.learned]
-    history = logs["learning"]
+    history = logs["learning"] if "learning" in logs else next(iter(logs.values()))
     weights = plots.plot_weights(
         folder / f"weights_{task.name}.png", task.name, [task.feature_names[i] for i in learned],
         history["weights_t"], history["weights"][:, learned], task.vector("true")[learned], task.duration,

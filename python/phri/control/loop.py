@@ -12,8 +12,9 @@ simulated study, a Franka over libfranka) at the backend's control rate. One tic
    (:class:`~phri.exceptions.ReplanWorkerError`) leaves the arm on its plan and the motion goes on
    (``LoopResult.replan_failures``);
 4. ``learner.reference(t)``: the reference q_R, q̇_R to track;
-5. the impedance torque (:meth:`phri.ImpedanceController.torque_implicit`, with the task's scene so
-   the run-time clearance wall acts), including g(q);
+5. the impedance torque (:meth:`phri.ImpedanceController.torque_implicit`, or
+   :meth:`~phri.ImpedanceController.torque` for a real arm: ``implicit=False``; with the task's
+   scene so the run-time clearance wall acts), including g(q);
 6. the safety layer limits it (:meth:`phri.control.SafetyLayer.limit_torque`: torque and
    torque-rate limits, clips counted; the first command's rate from what the arm applies at rest
    where it starts: zero, or g(q) for an arm that does not compensate gravity) and makes the
@@ -259,6 +260,14 @@ class ControlLoop:
     late ticks in a row stop the arm; a tick is late when it comes more than `late_after` periods
     after the previous one, on the robot's clock. `log_rate` [Hz]: the rate of the loop's log.
     `on_tick`: called every tick with (tick, state, log row or -1) before the command is written.
+
+    `implicit`: the impedance law discretised implicitly (:meth:`phri.ImpedanceController.torque_implicit`,
+    the default), for a simulator that integrates explicitly an arm without rotor inertia (PyBullet's
+    JACO2), where the explicit law goes unstable at 1 kHz. False: the explicit law
+    (:meth:`~phri.ImpedanceController.torque`), for a real arm, whose rotors' inertia keeps it stable
+    (libfranka's own joint-impedance examples). The implicit law divides by phri's model's inertia,
+    which has no rotors: on an FR3's wrist (link inertia about 0.002 kg·m², rotor 0.07) its static
+    stiffness would be about a tenth of the gains.
     """
 
     def __init__(
@@ -273,6 +282,7 @@ class ControlLoop:
         late_after: float = LATE_AFTER,
         log_rate: float = LOG_RATE,
         on_tick: TickHook | None = None,
+        implicit: bool = True,
     ) -> None:
         if not isinstance(backend, Backend):
             raise InvalidParameterError(
@@ -299,7 +309,10 @@ class ControlLoop:
             raise InvalidParameterError(
                 f"log_rate must be in (0, {1.0 / period:g}] Hz (the control rate), got {log_rate!r}"
             )
+        if not isinstance(implicit, bool):
+            raise InvalidParameterError(f"implicit must be True or False, got {implicit!r}")
         self.backend, self.learner, self.controller, self.limits = backend, learner, controller, limits
+        self.implicit = implicit
         self.period = period
         self.hold_time = float(hold_time)
         self.log_period = 1.0 / float(log_rate)
@@ -384,7 +397,7 @@ class ControlLoop:
     def _run(self, state: RobotState, duration: float, result: LoopResult, log: _Log) -> None:
         """The ticks of one motion, then the hold after a stop."""
         backend, learner, controller, safety = self.backend, self.learner, self.controller, self.safety
-        observe, reference, torque = learner.observe, learner.reference, controller.torque_implicit
+        observe, reference, torque = learner.observe, learner.reference, self._law()
         check_state, limit_torque = safety.check_state, safety.limit_torque
         read, write, on_tick = backend.read, backend.write, self.on_tick
         q_ref, qd_ref, tau, command = self.q_ref, self.qd_ref, self.tau, self.command
@@ -455,7 +468,7 @@ class ControlLoop:
     ) -> None:
         """Holds the position of `state` (the stop's) with the impedance law for the hold time;
         ends early when the state cannot be trusted or the arm stops answering."""
-        controller, safety, on_tick = self.controller, self.safety, self.on_tick
+        controller, safety, on_tick, law = self.controller, self.safety, self.on_tick, self._law()
         q_ref, qd_ref, tau, command = self.q_ref, self.qd_ref, self.tau, self.command
         q_ref[:] = state.q
         qd_ref[:] = 0.0
@@ -465,7 +478,7 @@ class ControlLoop:
         period, log_period = self.period, self.log_period
         try:
             while True:
-                controller.torque_implicit(state.q, state.qd, q_ref, qd_ref, period, out=tau)
+                law(state.q, state.qd, q_ref, qd_ref, period, out=tau)
                 if safety.limit_torque(state.q, tau, command) is not None:
                     return  # a non-finite torque: nothing to hold with
                 wall = controller.wall_force
@@ -499,6 +512,17 @@ class ControlLoop:
             return
 
     # -- helpers -----------------------------------------------------------------------------------
+
+    def _law(self) -> Callable[..., np.ndarray]:
+        """The impedance law as ``law(q, qd, q_ref, qd_ref, dt, out=tau)``: implicit or explicit."""
+        if self.implicit:
+            return self.controller.torque_implicit
+        explicit = self.controller.torque
+
+        def law(q: Any, qd: Any, q_ref: Any, qd_ref: Any, dt: float, out: np.ndarray) -> np.ndarray:
+            return explicit(q, qd, q_ref, qd_ref, out=out)
+
+        return law
 
     def _at_rest(self, state: RobotState) -> np.ndarray | None:
         """What the arm applies at rest where it starts, from which the first command's rate is

@@ -183,10 +183,25 @@ class FrankaBackend:
             raise ConnectionLostError(f"host {self.host!r}: {error}") from None
         return out["robot"]
 
+    def read_once(self) -> RobotState:
+        """Connects (unless connected) and reads the robot's state once, without starting control:
+        where the arm is before a motion is planned. The connection is kept for :meth:`start`.
+        The state's time is 0; its `fault` names a pending reflex (which :meth:`start` recovers)."""
+        if self._robot is None:
+            self._robot, self._t0 = self._connect(), None
+        try:
+            state = self._robot.read_once()
+        except self._franka.NetworkException as e:
+            self.stop()
+            raise ConnectionLostError(f"host {self.host!r}: the robot stopped answering: {e}") from None
+        self._t0 = None
+        return self._state(state)
+
     def start(self, q_start: np.ndarray) -> RobotState:
-        """Connects, clears a pending reflex, sets the collision thresholds and the load, and starts
-        torque control. The arm stays where it is (`q_start` is for the loop to drive it to)."""
-        robot = self._connect()
+        """Connects (or takes the connection :meth:`read_once` made), clears a pending reflex, sets
+        the collision thresholds and the load, and starts torque control. The arm stays where it is
+        (`q_start` is for the loop to drive it to)."""
+        robot = self._robot if self._robot is not None else self._connect()
         self._robot, self._t0, self._fault = robot, None, None
         try:
             state = robot.read_once()
@@ -233,7 +248,10 @@ class FrankaBackend:
         except self._franka.ControlException as e:
             # libfranka's message says why (a reflex and its errors, or the user stop).
             mode = "UserStopped" if "User Stop" in str(e) else "Reflex"
-            self._fault = self._state(None, fault=f"the robot aborted control: {e}; {MODE_RECOVERY[mode]}")
+            # With the last state the robot sent (its time and pose), NaN if there was none.
+            self._fault = self._state(
+                self.raw, fault=f"the robot aborted control: {e}; {MODE_RECOVERY[mode]}"
+            )
             return self._fault
         return self._state(state)
 

@@ -8,7 +8,9 @@ What it adds to franky-sim, per 1 ms tick:
   places them (base frame = MuJoCo's world). Furniture (table, laptop) collides with the arm, as it
   would. The person is drawn but does not collide: their body is soft and moves aside, and a rigid
   cylinder would hit the arm with forces no person exerts; they act on the arm only through the push.
-- **Push.** During a torque-control motion the participant (:func:`participant_for`) watches the
+- **Push.** During a torque-control motion that begins at the task's start pose (every joint within
+  :data:`phri.franka.move.START_TOLERANCE` of it; during any other, such as the move that brings
+  the arm there, the person stands back) the participant (:func:`participant_for`) watches the
   arm (its joint positions, the robot's time since the motion started) and pushes: before each
   physics step its wrench (force [N] at the hand's tool point, torque [N·m], base frame) is MuJoCo's
   applied wrench ``xfrc_applied`` on the hand body, moved from the tool point to the body's centre
@@ -43,6 +45,7 @@ from phri._phri import Robot, Scene, SceneObject
 from phri.config import Task
 from phri.exceptions import InvalidParameterError
 from phri.franka.faults import ERROR_NAMES, Fault
+from phri.franka.move import START_TOLERANCE
 from phri.franka.sim_server import READY
 
 __all__ = ["build_server", "participant_for", "scene_bodies", "serve"]
@@ -141,11 +144,17 @@ def _vec(values: Any) -> str:
 
 class Push:
     """The participant's push on the simulated FR3: a pre-step callback that applies it, and a
-    post-step one that keeps the external torque an FR3 would estimate (libfranka's sign)."""
+    post-step one that keeps the external torque an FR3 would estimate (libfranka's sign).
 
-    def __init__(self, make_person: Callable[[], Any] | None, robot: Any) -> None:
+    `start`: the task's start pose [rad]; the person takes part only in a motion that begins there
+    (None: in every motion)."""
+
+    def __init__(
+        self, make_person: Callable[[], Any] | None, robot: Any, start: np.ndarray | None = None
+    ) -> None:
         self.make_person = make_person
         self.robot = robot  # franky-sim's FrankaMujocoRobot (attached to the scene)
+        self.start = None if start is None else np.asarray(start, dtype=float)
         self.person: Any = None
         #: The person for the next motion, made ahead (making one samples the desired plan at 1 kHz:
         #: tens of ms that must not fall in a motion's first tick).
@@ -176,8 +185,14 @@ class Push:
 
     def begin_motion(self) -> None:
         """A torque-control motion starts: the person's clock starts at 0 (a fresh person, the same
-        seed: every motion is one episode)."""
+        seed: every motion that begins at the task's start is one episode). A motion that begins
+        elsewhere (the move to the start) goes on without them: they wait for the next."""
         self.t = 0.0
+        if self.start is not None and self.next_person is not None:
+            q = self.robot.data.qpos[self.qpos]
+            if np.abs(q - self.start).max() > START_TOLERANCE:
+                self.person = None
+                return
         self.person, self.next_person = self.next_person, None
 
     def end_motion(self) -> None:
@@ -496,7 +511,8 @@ def build_server(
             sim.worldbody.append(body)
         model = Robot.fr3()
         make_person = participant_for(task, model, seed) if person else None
-    return SceneServer(sim, host, Push(make_person, robot), faults, channel, report)
+    start = None if task is None else np.asarray(task.start, dtype=float)
+    return SceneServer(sim, host, Push(make_person, robot, start), faults, channel, report)
 
 
 def read_channel(

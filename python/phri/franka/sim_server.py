@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import ipaddress
+import math
 import os
 import socket
 import subprocess
@@ -61,6 +63,15 @@ def check_realtime(realtime: object) -> float:
     return float(realtime)
 
 
+def check_duration(duration: object) -> float:
+    """`duration` as a task duration override [s]: finite and > 0."""
+    if isinstance(duration, bool) or not (
+        isinstance(duration, int | float) and math.isfinite(duration) and duration > 0
+    ):
+        raise InvalidParameterError(f"duration must be a finite time > 0 s, got {duration!r}")
+    return float(duration)
+
+
 def fr3_task(name_or_path: str | Path) -> Task:
     """The FR3 task `name_or_path`: a shipped FR3 task by its name with or without the ``fr3_``
     prefix (``table`` is ``fr3_table``), or a task file; a task posed for another robot is a
@@ -85,8 +96,10 @@ class SimServer:
     """phri's scene server on `host` (a loopback address) in a child process, slowed by `realtime`
     (1: real time; 2: each 1 ms tick takes 2 ms of wall time, for loaded machines). `task` (an FR3
     task name or file; None: the bare FR3) brings its scene and the participant seeded `seed`
-    (`person=False`: the scene without them); `faults` is a schedule (``KIND[:ARG][@T]`` strings,
-    see :mod:`phri.franka.faults`), and :meth:`inject` sends one through the control channel.
+    (`person=False`: the scene without them); `duration` [s] overrides the task's (the person's
+    desired behaviour is the plan for it, so a client running the task shortened must shorten it
+    here too); `faults` is a schedule (``KIND[:ARG][@T]`` strings, see :mod:`phri.franka.faults`),
+    and :meth:`inject` sends one through the control channel.
 
     Use as a context manager: the process is started, waited for until its port answers, and always
     killed at the end."""
@@ -99,6 +112,7 @@ class SimServer:
         task: str | Path | None = None,
         seed: int = 0,
         person: bool = True,
+        duration: float | None = None,
         faults: Sequence[str] = (),
         log_protocol: bool = False,
     ) -> None:
@@ -110,6 +124,7 @@ class SimServer:
             raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
         if task is not None:
             fr3_task(task)  # a missing or wrong task is a ConfigError here, not a dead child
+        self.duration = None if duration is None else check_duration(duration)
         self.task, self.seed, self.person, self.log_protocol = task, seed, person, log_protocol
         self.faults = [Fault.parse(f).spec() for f in faults]
         self.process: subprocess.Popen[bytes] | None = None
@@ -123,6 +138,8 @@ class SimServer:
         command += ["--realtime", str(self.realtime), "--seed", str(self.seed), "--control-stdin"]
         if self.task is not None:
             command += ["--task", str(self.task)]
+        if self.duration is not None:
+            command += ["--duration", repr(self.duration)]
         if not self.person:
             command.append("--no-person")
         if self.log_protocol:
@@ -230,6 +247,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--realtime", type=float, default=1.0,
                         help="slow-down: 1 real time, 2: a 1 ms tick takes 2 ms (default 1)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated participant (default 0)")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="override the task's duration [s] (the person's plan lasts as long; "
+                        "give the client the same override)")  # fmt: skip
     parser.add_argument("--no-person", action="store_true", help="the scene without the participant")
     parser.add_argument("--fault", action="append", default=[], metavar="KIND[:ARG][@T]",
                         help="inject a fault (repeatable): reflex[:ERRORS], user_stop[:S], "
@@ -260,6 +280,10 @@ def run(args: argparse.Namespace) -> int:
         logging.getLogger("franky_sim").addHandler(handler)
         logging.getLogger("franky_sim").setLevel(logging.DEBUG)
     task = fr3_task(args.task) if args.task is not None else None
+    if args.duration is not None:
+        if task is None:
+            raise InvalidParameterError("--duration needs --task (the bare FR3 has no task to shorten)")
+        task = dataclasses.replace(task, duration=check_duration(args.duration))
     serve(
         args.host,
         task=task,

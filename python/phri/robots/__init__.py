@@ -1,7 +1,9 @@
 """Robot descriptions: per robot a URDF and, beside it, a ``robot.toml`` naming the modelled chain
 (base and tip links), the frames phri uses (the features' point, the hand, the cup), what the
 robot carries (one ``[carried.<name>]`` table per object: its URDF and the frame it is held at) and
-the limits of the control loop's safety layer (``[safety]``, see :class:`SafetySpec`).
+the limits of the control loop's safety layer (``[safety]``, see :class:`SafetySpec`) and, for a
+robot whose impedance gains are not the core's default (the JACO2's), its joint stiffness and
+damping (``[impedance]``, read by :func:`impedance_controller`).
 
 ``Robot.jaco2()`` and ``Robot.from_description(path)`` read them through :func:`load`; the
 simulation takes its frame names from the same description, so each lives in one file.
@@ -12,18 +14,24 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from phri._validate import Reader, finite, parse_toml
 from phri.exceptions import ConfigError
 
-__all__ = ["CarriedObject", "RobotDescription", "SafetySpec", "load", "read_safety"]
+if TYPE_CHECKING:
+    from phri._phri import ImpedanceController, Robot, Scene
+
+__all__ = ["CarriedObject", "RobotDescription", "SafetySpec", "impedance_controller", "load", "read_safety"]
 
 DESCRIPTION_KEYS = (
     "urdf", "base", "tip", "feature_frame", "hand_frame", "cup_frame", "carried", "interaction", "safety",
+    "impedance",
 )  # fmt: skip
 #: The keys of a [safety] table's joint limits (a robot description's, or a task's overrides).
 SAFETY_KEYS = ("position_margin", "velocity_limits", "torque_limits", "torque_rate_limit")
-INTERACTION_KEYS = ("thresholds",)
+INTERACTION_KEYS = ("thresholds", "transition_speed")
+IMPEDANCE_KEYS = ("stiffness", "damping")
 CARRIED_KEYS = ("urdf", "frame")
 #: The carried object whose frame is the description's `cup_frame`.
 CUP = "cup"
@@ -111,8 +119,15 @@ class RobotDescription:
     #: The interaction detector's per-joint thresholds [N·m] ([interaction] thresholds; None if
     #: the description gives none).
     thresholds: tuple[float, ...] | None = None
+    #: The fastest blend into a new plan this robot allows, as a fraction of its rated joint
+    #: velocities ([interaction] transition_speed; None: the episode's setting stands).
+    transition_speed: float | None = None
     #: The safety layer's joint limits ([safety]; empty if the description has no such table).
     safety: SafetySpec = SafetySpec()
+    #: The impedance law's joint stiffness [N·m/rad] and damping [N·m·s/rad] ([impedance]; None:
+    #: the core's defaults, ``ImpedanceParams::jaco2_default``).
+    stiffness: tuple[float, ...] | None = None
+    damping: tuple[float, ...] | None = None
 
     def urdf_text(self) -> str:
         """The URDF's text; a missing or unreadable file is a ConfigError naming the description."""
@@ -153,11 +168,57 @@ def load(name_or_path: str | Path) -> RobotDescription:
         if not (v > 0).all():
             raise interaction.fail("thresholds", "a list of positive numbers [N·m], one per joint", raw)
         thresholds = tuple(float(x) for x in v)
+    transition_speed = None
+    if "transition_speed" in interaction.table:
+        transition_speed = interaction.number("transition_speed", expected="a fraction in (0, 1]")
+        if not 0 < transition_speed <= 1:
+            raise interaction.fail("transition_speed", "a fraction in (0, 1]", transition_speed)
     safety = read_safety(r.table_of("safety", SAFETY_KEYS))
+    stiffness, damping = _gains(r.table_of("impedance", IMPEDANCE_KEYS))
     return RobotDescription(
         source, path.parent / r.string("urdf"), r.string("base"), r.string("tip"), **frames,
-        carried=carried, thresholds=thresholds, safety=safety,
+        carried=carried, thresholds=thresholds, transition_speed=transition_speed, safety=safety,
+        stiffness=stiffness, damping=damping,
     )  # fmt: skip
+
+
+def _gains(r: Reader) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None]:
+    """The [impedance] table's stiffness and damping (both or neither): lists of finite numbers > 0,
+    one per joint (their count is checked against the robot when the controller is made)."""
+    given = [key for key in IMPEDANCE_KEYS if key in r.table]
+    if len(given) == 1:
+        missing = next(key for key in IMPEDANCE_KEYS if key not in given)
+        raise r.fail(missing, f"given with '{r.prefix}{given[0]}' (the two gains go together)")
+    gains: dict[str, tuple[float, ...] | None] = {key: None for key in IMPEDANCE_KEYS}
+    for key in given:
+        raw = r.get(key)
+        if not (isinstance(raw, list) and raw and all(finite(x) and x > 0 for x in raw)):
+            raise r.fail(key, "a list of finite numbers > 0, one per joint", raw)
+        gains[key] = tuple(float(x) for x in raw)
+    return gains["stiffness"], gains["damping"]
+
+
+def impedance_controller(
+    robot: Robot, description: str | Path | RobotDescription, scene: Scene | None = None
+) -> ImpedanceController:
+    """The impedance law for `robot` with its description's gains (``[impedance]``; the core's
+    defaults, the JACO2's, where it gives none), with g(q) (the control loop removes it for an arm
+    that compensates gravity itself) and, with `scene`, the run-time clearance wall. The one place
+    a robot's controller is made; a gain count that is not the robot's joint count is a ConfigError
+    naming the file."""
+    from phri._phri import ImpedanceController
+
+    d = description if isinstance(description, RobotDescription) else load(description)
+    for key in IMPEDANCE_KEYS:
+        value = getattr(d, key)
+        if value is not None and len(value) != robot.nq:
+            raise ConfigError(
+                f"{d.source}: key 'impedance.{key}' must have one value per joint ({robot.nq}), "
+                f"got {len(value)}"
+            )
+    if d.stiffness is None:
+        return ImpedanceController(robot, scene=scene)
+    return ImpedanceController(robot, stiffness=list(d.stiffness), damping=list(d.damping or ()), scene=scene)
 
 
 def _carried(r: Reader, folder: Path) -> tuple[CarriedObject, ...]:

@@ -2,14 +2,21 @@
 the simulated participant pushes when the cup strays, and the robot either learns (Algorithm 1) or
 only complies (the impedance baseline). Scored as the paper's study scored it (Bajcsy et al. 2017,
 §4.2: effort, interaction time, task cost).
+
+The robot's side of an episode and its scoring do not depend on PyBullet; an episode on another
+backend (a Franka over libfranka, :mod:`phri.franka.episode`) uses the same pieces:
+:func:`robot_controls` (the planner, the learner, the impedance law and the safety limits),
+:func:`run_on_loop` (the episode on :class:`phri.control.ControlLoop`) and :func:`score_episode`
+(the study's measures and the log's arrays).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,6 +30,7 @@ from phri._phri import (
     ImpedanceController,
     InteractionDetector,
     Learner,
+    Robot,
     TimedTrajectory,
     TrajectoryOptimizer,
     TrajoptInfo,
@@ -31,7 +39,8 @@ from phri._phri import (
 from phri._validate import must_be
 from phri.atomic import write_atomic
 from phri.config import Task
-from phri.control import ControlLoop, LoopResult, RobotState, SafetyLimits, StopEvent, safety_limits
+from phri.control import Backend, ControlLoop, LoopResult, RobotState, SafetyLimits, StopEvent, safety_limits
+from phri.control.loop import TickHook
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.backend import PyBulletBackend, steps_per_period
 from phri.sim.participant import Participant, ParticipantParams
@@ -43,10 +52,15 @@ __all__ = [
     "STRATEGIES",
     "EpisodeConfig",
     "EpisodeResult",
+    "EpisodeTrace",
     "Planner",
+    "RobotControls",
     "encode_log",
     "episode_failure",
+    "robot_controls",
     "run_episode",
+    "run_on_loop",
+    "score_episode",
     "simulate_episode",
     "write_log",
 ]
@@ -60,7 +74,8 @@ RULES = UPDATE_RULES
 VELOCITY_MARGIN = 0.5
 #: The JACO2's joint count: the length of every per-joint setting below.
 JOINTS = 7
-#: The study's interaction thresholds, joints 1..7 [N·m] (the detector's default).
+#: The study's interaction thresholds, joints 1..7 [N·m] (the detector's default, and the JACO2's
+#: ``[interaction]`` thresholds in its robot description).
 ORIGINAL_THRESHOLDS = (8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0)
 #: The thresholds of the original's later versions, joints 1..7 [N·m] (used there together with a
 #: subtracted per-joint bias: EpisodeConfig.detector_bias).
@@ -80,7 +95,8 @@ class EpisodeConfig:
     sensor_noise: float = 0.1
     #: Constant offset on the measurement, per joint [N·m] (None: none); the detector does not know it.
     sensor_bias: tuple[float, ...] | None = None
-    #: The interaction detector's per-joint thresholds [N·m] (None: ORIGINAL_THRESHOLDS, the study's
+    #: The interaction detector's per-joint thresholds [N·m] (None: the robot description's
+    #: ``[interaction]`` thresholds, else ORIGINAL_THRESHOLDS; the JACO2's are the study's
     #: 8, 8, 8, 2, 1, 1, 1; LATER_THRESHOLDS are the original's later ones).
     thresholds: tuple[float, ...] | None = None
     #: The per-joint bias the detector subtracts from each measurement before thresholding [N·m]
@@ -92,7 +108,8 @@ class EpisodeConfig:
     log_rate: float = 100.0
     #: After a replan the reference blends into the new plan with joint speeds of at most this
     #: fraction of the velocity limits; 0 switches at once as the original did (the arm then snaps
-    #: onto the new plan at several times its limits).
+    #: onto the new plan at several times its limits). A robot description's ``[interaction]
+    #: transition_speed`` caps it (the FR3's, whose joints are four times the JACO2's speed).
     transition_speed: float = 0.8
     #: The simulated time a replan takes [s]: the learner replans on its worker thread and adopts
     #: the plan at the first control tick this long after the push's sample, whatever the machine's
@@ -208,15 +225,17 @@ class EpisodeResult:
 class Planner:
     """The task's features and optimiser, and the plans for its initial and true weights.
 
+    `world` is the simulator World whose model plans, or the robot's model itself (a real arm's).
     The optimiser keeps every collision body of the arm and the cup at least each scene object's
     margin from it (and from each other) along the executed curve, and each joint within
     VELOCITY_MARGIN of its velocity limit: the safe defaults of TrajectoryOptimizer for a task."""
 
-    def __init__(self, task: Task, world: World) -> None:
+    def __init__(self, task: Task, world: World | Robot) -> None:
         self.task = task
-        self.features = task.feature_set(world.model)
-        world.model.check_limits(task.start)
-        world.model.check_limits(task.goal)
+        model = world if isinstance(world, Robot) else world.model
+        self.features = task.feature_set(model)
+        model.check_limits(task.start)
+        model.check_limits(task.goal)
         self.optimizer = TrajectoryOptimizer(
             self.features, task.waypoints, duration=task.duration, speed_fraction=VELOCITY_MARGIN
         )
@@ -268,9 +287,93 @@ def write_log(path: Path, arrays: Mapping[str, np.ndarray]) -> Path:
 
 
 @dataclass
+class RobotControls:
+    """The robot's side of an episode, the same in simulation and on a real arm: the task's planner,
+    the learner (Algorithm 1, or only compliance for the impedance strategy), the impedance law
+    with the task's scene (the run-time clearance wall) and the safety layer's limits, and the
+    interaction detector's thresholds [N·m] per joint."""
+
+    planner: Planner
+    learner: Learner
+    controller: ImpedanceController
+    limits: SafetyLimits
+    thresholds: tuple[float, ...]
+
+
+def make_learner(
+    task: Task,
+    planner: Planner,
+    config: EpisodeConfig,
+    thresholds: Sequence[float],
+    *,
+    replan_latency: float | None,
+    optimizer: TrajectoryOptimizer | None = None,
+) -> Learner:
+    """The episode's learner: the one place an episode's :class:`phri.Learner` is made.
+
+    `replan_latency` [s]: a simulated episode's is ``config.replan_latency`` (0 replans inline, a
+    positive time adopts the worker's plan that long after the push's sample, deterministically);
+    None adopts it at the first tick after it is ready (a real arm's), see :class:`phri.Learner`.
+    `optimizer`: the replans' optimiser (default: the planner's)."""
+    update = WeightUpdate(
+        task.vector("step"), task.vector("lower"), task.vector("upper"),
+        learned=[f.learned for f in task.features], rule=config.rule,  # type: ignore[arg-type]
+    )  # fmt: skip
+    detector = InteractionDetector(
+        list(thresholds), None if config.detector_bias is None else config.detector_bias
+    )
+    return Learner(
+        planner.features, Deformation(), update, detector, optimizer or planner.optimizer,
+        task.vector("initial"), task.start, task.goal,
+        duration=task.duration, sample_period=1.0 / config.sample_rate,
+        learning=config.strategy == "learning", transition_speed=config.transition_speed,
+        replan_latency=replan_latency,
+    )  # fmt: skip
+
+
+def robot_controls(
+    task: Task,
+    model: Robot,
+    config: EpisodeConfig,
+    planner: Planner | None = None,
+    *,
+    replan_latency: float | None,
+) -> RobotControls:
+    """The robot's side of an episode of `task` on `model` (`task.robot`'s description supplies the
+    interaction thresholds, the cap on the blend's speed, the impedance gains and the safety limits):
+    the planner (made here if `planner` is None), the learner (:func:`make_learner` with
+    `replan_latency`; its blend into a new plan no faster than the description's
+    ``transition_speed``), the impedance law with the task's scene
+    (:func:`phri.robots.impedance_controller`) and the safety limits (the robot's ``[safety]``
+    tightened by the task's)."""
+    for key in ("thresholds", "detector_bias"):
+        value = getattr(config, key)
+        if value is not None and len(value) != model.nq:
+            raise InvalidParameterError(f"{key} must have one value per joint ({model.nq}), got {len(value)}")
+    description = robots.load(task.robot)
+    planner = planner or Planner(task, model)
+    thresholds = config.thresholds or description.thresholds or ORIGINAL_THRESHOLDS
+    if len(thresholds) != model.nq:
+        raise InvalidParameterError(
+            f"{description.source}: key 'interaction.thresholds' must have one value per joint "
+            f"({model.nq}), got {len(thresholds)}"
+        )
+    cap = description.transition_speed
+    if cap is not None and config.transition_speed > cap:
+        config = dataclasses.replace(config, transition_speed=cap)
+    learner = make_learner(task, planner, config, thresholds, replan_latency=replan_latency)
+    # The virtual wall keeps every body clear of the furniture at run time, however the person pushes.
+    controller = robots.impedance_controller(model, description, task.scene)
+    # The safety layer's limits: the robot's [safety] table, tightened by the task's, its tool box.
+    limits = safety_limits(model, description, task)
+    return RobotControls(planner, learner, controller, limits, tuple(float(x) for x in thresholds))
+
+
+@dataclass
 class _Parts:
-    """What one episode runs: the learner (the robot's side), the controller and its safety limits,
-    the person and the sensor, and the simulator steps between two torque samples and two log rows."""
+    """What one simulated episode runs: the robot's side (the planner, the learner, the controller
+    and its safety limits), the person and the sensor, and the simulator steps between two torque
+    samples and two log rows."""
 
     planner: Planner
     learner: Learner
@@ -298,45 +401,34 @@ def _set_up(
     sample_every = steps_per_period("sample_rate", config.sample_rate, dt)
     log_every = steps_per_period("log_rate", config.log_rate, dt)
     model = world.model
-    for key in ("sensor_bias", "thresholds", "detector_bias"):
-        value = getattr(config, key)
-        if value is not None and len(value) != model.nq:
-            raise InvalidParameterError(f"{key} must have one value per joint ({model.nq}), got {len(value)}")
+    if config.sensor_bias is not None and len(config.sensor_bias) != model.nq:
+        raise InvalidParameterError(
+            f"sensor_bias must have one value per joint ({model.nq}), got {len(config.sensor_bias)}"
+        )
     # Independent streams for the person and the sensor: the same seed gives the same person (their
     # own draws) whatever the sensor does, e.g. under both strategies or another sensor_noise.
     person_rng, sensor_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    planner = planner or Planner(task, world)
-    update = WeightUpdate(
-        task.vector("step"), task.vector("lower"), task.vector("upper"),
-        learned=[f.learned for f in task.features], rule=config.rule,  # type: ignore[arg-type]
-    )  # fmt: skip
-    detector = InteractionDetector(
-        ORIGINAL_THRESHOLDS if config.thresholds is None else config.thresholds,
-        None if config.detector_bias is None else config.detector_bias,
+    controls = robot_controls(
+        task, model, config, planner or Planner(task, world), replan_latency=config.replan_latency
     )
-    learner = Learner(
-        planner.features, Deformation(), update, detector, planner.optimizer,
-        task.vector("initial"), task.start, task.goal,
-        duration=task.duration, sample_period=1.0 / config.sample_rate,
-        learning=config.strategy == "learning", transition_speed=config.transition_speed,
-        replan_latency=config.replan_latency,
-    )  # fmt: skip
+    planner = controls.planner
     desired = TimedTrajectory(planner.desired, task.duration)
     person = Participant(participant_params, task, model, desired, person_rng, dt=dt)
     bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
-    # The virtual wall keeps every body clear of the furniture at run time, however the person pushes.
-    controller = ImpedanceController(model, scene=task.scene)
-    # The safety layer's limits: the robot's [safety] table, tightened by the task's, its tool box.
-    limits = safety_limits(model, robots.load(task.robot), task)
-    return _Parts(planner, learner, controller, limits, person, sensor_rng, bias, sample_every, log_every)
+    return _Parts(
+        planner, controls.learner, controls.controller, controls.limits, person, sensor_rng, bias,
+        sample_every, log_every,
+    )  # fmt: skip
 
 
 @dataclass
-class _Trace:
-    """The 1 kHz loop's record at the log rate: the first `rows` rows of each array are filled."""
+class EpisodeTrace:
+    """The control loop's record of an episode at the log rate: the first `rows` rows of each
+    array are filled."""
 
     t: np.ndarray
-    #: q, qd, q_ref, tau, u_h (measured) per joint and push (the person's wrench at the hand).
+    #: q, qd, q_ref, tau, u_h (measured) per joint, push (the person's wrench at the hand: force
+    #: [N], torque [N·m]; zero while nobody touches it) and wall_force [N].
     series: dict[str, np.ndarray]
     rows: int = 0
     #: Largest hand-to-reference distance while nobody touches the hand [m].
@@ -352,41 +444,49 @@ class _Trace:
     error: BaseException | None = None
 
 
-def _simulate(
-    task: Task,
-    world: World,
-    parts: _Parts,
-    config: EpisodeConfig,
-    frame_times: Sequence[float],
-    frame_prefix: Path | None,
-) -> _Trace:
-    """The episode on the control loop (phri.control) over the PyBullet backend: the person pushes,
-    the sensor samples, the learner updates its reference, the impedance controller tracks it and
-    the safety layer watches. A safety stop or an error ends the episode and is kept in the trace,
-    with the log so far."""
-    dt, model = world.params.timestep, world.model
-    world.set_scene(task.scene)
-    backend = PyBulletBackend(
-        world, participant=parts.person, sample_rate=config.sample_rate,
-        sensor_noise=config.sensor_noise, sensor_bias=parts.bias, rng=parts.sensor_rng,
-    )  # fmt: skip
-    frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
-    tracking = {"error": 0.0}
-    frames: list[Path] = []
+#: The person's wrench at the hand (force [N], torque [N·m]) for a state, None while nobody touches
+#: the hand.
+PushOf = Callable[[RobotState], "np.ndarray | None"]
 
-    def on_tick(k: int, state: RobotState, row: int) -> None:
+
+def run_on_loop(
+    task: Task,
+    backend: Backend,
+    learner: Learner,
+    controller: ImpedanceController,
+    limits: SafetyLimits,
+    push_of: PushOf,
+    *,
+    log_rate: float,
+    hand: str,
+    on_tick: TickHook | None = None,
+    implicit: bool = True,
+) -> EpisodeTrace:
+    """The episode of `task` on :class:`phri.control.ControlLoop` over `backend`: the learner
+    updates its reference from the measured torque, the impedance law tracks it and the safety
+    layer watches, for ``task.duration`` seconds of the robot's time from ``task.start``.
+
+    At each log row `push_of(state)` gives the person's wrench at the hand (logged as ``push``);
+    while it is None the hand's distance from its reference (frame `hand`) counts towards the
+    tracking error. `on_tick` is the loop's tick hook, called after this one. `implicit`: the
+    loop's impedance law (:class:`phri.control.ControlLoop`; False on a real arm). A safety stop or
+    an error ends the episode and is kept in the trace, with the log so far."""
+    model = backend.robot
+    tracking = {"error": 0.0}
+
+    def hook(k: int, state: RobotState, row: int) -> None:
         if row >= 0:
-            push = backend.push
+            push = push_of(state)
             if push is not None:
-                push_rows[row] = np.concatenate(push)
+                push_rows[row] = push
             else:  # the hand's distance from its reference while nobody touches it
-                gap = model.frame_pose(HAND, state.q)[:3, 3] - model.frame_pose(HAND, loop.q_ref)[:3, 3]
+                gap = model.frame_pose(hand, state.q)[:3, 3] - model.frame_pose(hand, loop.q_ref)[:3, 3]
                 tracking["error"] = max(tracking["error"], float(np.linalg.norm(gap)))
-        if frame_prefix is not None and k in frame_ticks:
-            frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
+        if on_tick is not None:
+            on_tick(k, state, row)
 
     loop = ControlLoop(
-        backend, parts.learner, parts.controller, parts.limits, log_rate=config.log_rate, on_tick=on_tick
+        backend, learner, controller, limits, log_rate=log_rate, on_tick=hook, implicit=implicit
     )
     #: The person's wrench at the hand (force [N], torque [N·m]) at each log row; zero while nobody
     #: touches it. As many rows as the loop's log can hold (the task, and a stop's hold).
@@ -404,10 +504,46 @@ def _simulate(
     series["push"] = push_rows[:n]
     #: The virtual wall's largest total force since the previous row [N] (0: it did not act).
     series["wall_force"] = log["wall_force"]
-    return _Trace(
+    return EpisodeTrace(
         log["t"], series, rows=n, tracking_error=tracking["error"], wall_ticks=result.wall_ticks,
-        wall_peak_force=result.wall_peak_force, frames=frames, loop=result, error=error,
+        wall_peak_force=result.wall_peak_force, loop=result, error=error,
     )  # fmt: skip
+
+
+def _simulate(
+    task: Task,
+    world: World,
+    parts: _Parts,
+    config: EpisodeConfig,
+    frame_times: Sequence[float],
+    frame_prefix: Path | None,
+) -> EpisodeTrace:
+    """The episode on the control loop (:func:`run_on_loop`) over the PyBullet backend: the person
+    pushes, the sensor samples, the learner updates its reference, the impedance controller tracks
+    it and the safety layer watches."""
+    dt = world.params.timestep
+    world.set_scene(task.scene)
+    backend = PyBulletBackend(
+        world, participant=parts.person, sample_rate=config.sample_rate,
+        sensor_noise=config.sensor_noise, sensor_bias=parts.bias, rng=parts.sensor_rng,
+    )  # fmt: skip
+    frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
+    frames: list[Path] = []
+
+    def push_of(state: RobotState) -> np.ndarray | None:
+        push = backend.push
+        return None if push is None else np.concatenate(push)
+
+    def on_tick(k: int, state: RobotState, row: int) -> None:
+        if frame_prefix is not None and k in frame_ticks:
+            frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
+
+    trace = run_on_loop(
+        task, backend, parts.learner, parts.controller, parts.limits, push_of,
+        log_rate=config.log_rate, hand=HAND, on_tick=on_tick,
+    )  # fmt: skip
+    trace.frames = frames
+    return trace
 
 
 def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndarray]:
@@ -426,23 +562,32 @@ def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndar
     }
 
 
-def _score(
+def _nearest_rows(t: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """For each of `times` [s], the row of the log times `t` (ascending) nearest to it (the earlier
+    of two equally near; the last row for a time past the log's end)."""
+    if len(t) <= 1:
+        return np.zeros(len(times), dtype=int)
+    i = np.clip(np.searchsorted(t, times), 1, len(t) - 1)
+    return i - ((times - t[i - 1]) <= (t[i] - times)).astype(int)
+
+
+def score_episode(
     task: Task,
-    world: World,
-    parts: _Parts,
-    trace: _Trace,
+    model: Robot,
+    planner: Planner,
+    learner: Learner,
+    trace: EpisodeTrace,
     config: EpisodeConfig,
     initial_weights: np.ndarray,
+    *,
+    period: float,
 ) -> EpisodeResult:
-    """The study's measures of the episode, with its log arrays (the keys of the .npz log); wall_time
-    is left for the caller."""
-    model, dt, planner = world.model, world.params.timestep, parts.planner
-    history = _history(parts.learner, initial_weights)
-    # The executed path at the plan's waypoint times, scored with the same features.
-    idx = np.minimum(
-        np.round(np.linspace(0, task.duration, task.waypoints) / (dt * parts.log_every)).astype(int),
-        max(trace.rows - 1, 0),
-    )
+    """The study's measures of the episode `trace` of `task` on `model` (control period `period`
+    [s]), with its log arrays (the keys of the .npz log); wall_time is left for the caller."""
+    history = _history(learner, initial_weights)
+    # The executed path at the plan's waypoint times (the log rows nearest to them: the rows are on
+    # the log's time grid but for a tick the robot missed), scored with the same features.
+    idx = _nearest_rows(trace.t[: trace.rows], np.linspace(0, task.duration, task.waypoints))
     executed = trace.series["q"][idx]
     phi = planner.features.phi(executed)
     frame = planner.features.frame
@@ -458,11 +603,11 @@ def _score(
         cost=float(phi[task.task_index]),
         desired_cost=planner.desired_cost,
         initial_weights=initial_weights,
-        final_weights=parts.learner.weights,
+        final_weights=learner.weights,
         task_index=task.task_index,
         tracking_error=trace.tracking_error,
         min_clearance=float(distances.min()) if distances.size else math.inf,
-        wall_contact_time=trace.wall_ticks * dt,
+        wall_contact_time=trace.wall_ticks * period,
         wall_peak_force=trace.wall_peak_force,
         wall_time=0.0,
         executed_path=model.frame_pose(frame, executed)[:, :3, 3],
@@ -507,7 +652,10 @@ def simulate_episode(
     parts = _set_up(task, world, participant_params, config, seed, planner)
     initial_weights = parts.learner.weights
     trace = _simulate(task, world, parts, config, frame_times, frame_prefix)
-    result = _score(task, world, parts, trace, config, initial_weights)
+    result = score_episode(
+        task, world.model, parts.planner, parts.learner, trace, config, initial_weights,
+        period=world.params.timestep,
+    )  # fmt: skip
     result.wall_time = time.perf_counter() - began
     return result, trace.error
 

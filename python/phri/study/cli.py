@@ -92,6 +92,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
                    "versions; the default is to refuse)")  # fmt: skip
     x.add_argument("--no-progress", action="store_true",
                    help="no progress bar (it is shown only on a terminal, and not with -q)")  # fmt: skip
+    live = s.add_argument_group(
+        "the study with real people on a real arm (--live; serial, the questionnaire after each strategy)"
+    )
+    live.add_argument("--live", action="store_true",
+                      help="run the protocol on the arm at --host with the experimenter at the terminal: "
+                      "each episode is announced and waits for Enter ('q' pauses; the same command "
+                      "resumes)")  # fmt: skip
+    live.add_argument("--robot", choices=("fr3",),
+                      help="the arm at --host (with --live); its tasks are the fr3_* ones (--tasks table "
+                      "is fr3_table; default fr3_human,fr3_coffee,fr3_table,fr3_laptop)")  # fmt: skip
+    live.add_argument("--host", help="the robot's address (a real FR3's, or `phri sim-server`'s)")
+    live.add_argument("--connect-timeout", type=float, default=None,
+                      help="seconds to wait for an answer at --host (default 5)")  # fmt: skip
+    live.add_argument("--move-speed", type=float, default=None,
+                      help="the move to each episode's start pose: its fastest joint peaks at this "
+                      "fraction of its rated speed (default 0.1)")  # fmt: skip
     s.set_defaults(run=cmd_study)
 
     r = subparsers.add_parser(
@@ -176,14 +192,36 @@ def _study_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     given = {k: getattr(args, k) for k in _STUDY_KEYS if getattr(args, k) is not None}
     if "familiarization" in given and given["familiarization"].lower() in ("none", ""):
         given["familiarization"] = None
+    robot = getattr(args, "robot", None)
+    if robot is not None:
+        from phri.study.live import FR3_TASKS
+
+        # The robot's shipped tasks by their short names: "table" is "fr3_table".
+        if "tasks" in given:
+            given["tasks"] = tuple(_robot_task(t, robot) for t in given["tasks"])
+        if given.get("familiarization") is not None:
+            given["familiarization"] = _robot_task(given["familiarization"], robot)
+        if given and "tasks" not in given and args.config is None:
+            given["tasks"] = FR3_TASKS
     if args.config is None and not given:
         return None
     base = StudyConfig.from_toml(args.config).to_dict() if args.config is not None else {}
     if "tasks" in given and not given["tasks"]:
         raise StudyConfigError("--tasks: must name at least one task (comma-separated), got none")
     if "tasks" in given and "familiarization" not in given and "familiarization" not in base:
-        given["familiarization"] = given["tasks"][0] if given["tasks"][0] == "human" else None
+        first = given["tasks"][0]
+        given["familiarization"] = first if first in ("human", f"{robot}_human") else None
     return StudyConfig.from_dict({**base, **given}, str(args.config) if args.config is not None else "study")
+
+
+def _robot_task(name: str, robot: str) -> str:
+    """`name` as `robot`'s shipped task: the name with the robot's prefix if that task ships (a file
+    or an unknown name stays as it is, for the study's own checks)."""
+    from phri.config import task_names
+
+    if name.endswith(".toml") or "/" in name or name.startswith(f"{robot}_"):
+        return name
+    return f"{robot}_{name}" if f"{robot}_{name}" in task_names() else name
 
 
 def _fail(command: str, error: BaseException) -> int:
@@ -240,22 +278,86 @@ def _questionnaire_hooks(
     return between, answered
 
 
+def _live_runner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """With --live: the runner factory of run_study (the live study on the arm at --host); else
+    None. Bad combinations of the live options are a StudyConfigError naming them."""
+    from phri.study.errors import StudyConfigError
+
+    live_only = [
+        f"--{k.replace('_', '-')}"
+        for k in ("robot", "host", "connect_timeout", "move_speed")
+        if getattr(args, k) is not None
+    ]
+    if not args.live:
+        if live_only:
+            raise StudyConfigError(
+                f"study: {', '.join(live_only)} only go with --live (the simulated study runs the "
+                "PyBullet JACO2)"
+            )
+        return None
+    if args.robot is None or args.host is None:
+        raise StudyConfigError("study: --live needs --robot fr3 and --host ADDRESS (the robot's address)")
+    if args.backend != "process" or args.workers is not None or args.address is not None:
+        raise StudyConfigError(
+            "study: --live runs serially on the arm: leave out --backend, --workers, --address"
+        )
+    from phri.franka.episode import CONNECT_TIMEOUT
+    from phri.franka.move import MOVE_SPEED
+    from phri.study.live import LiveRunner, live_tasks
+
+    def make(config, log_width):  # type: ignore[no-untyped-def]
+        return LiveRunner(
+            config, live_tasks(config, args.robot), log_width, host=args.host, run_dir=args.run_dir,
+            robot=args.robot,
+            connect_timeout=CONNECT_TIMEOUT if args.connect_timeout is None else args.connect_timeout,
+            move_speed=MOVE_SPEED if args.move_speed is None else args.move_speed,
+        )  # fmt: skip
+
+    return make
+
+
+def _live_config(args: argparse.Namespace, config):  # type: ignore[no-untyped-def]
+    """The live study's config: `config` (from the options), else the folder's own study, else the
+    default study on the robot's tasks; its tasks must be posed for --robot."""
+    from phri.study.live import FR3_TASKS, live_tasks
+    from phri.study.protocol import StudyConfig
+    from phri.study.results import read_manifest
+
+    if config is None:
+        found = read_manifest(args.run_dir) if args.run_dir.is_dir() else None
+        config = found[0] if found is not None else StudyConfig(tasks=FR3_TASKS, familiarization=FR3_TASKS[0])
+    live_tasks(config, args.robot)  # a task for another robot is a ConfigError here, before anything
+    return config
+
+
 def cmd_study(args: argparse.Namespace) -> int:
     from phri._extras import available
+    from phri.study.live import StudyPaused
 
     try:
         from phri.study.run import run_study
 
+        runner = _live_runner(args)
+        if runner is not None:
+            args.ask = True  # the questionnaire after each strategy, as the paper's study asked it
         between, answered = _questionnaire_hooks(args)
         with _sigterm_unwinds():
             config = _study_config(args)
+            if runner is not None:
+                config = _live_config(args, config)
             run = run_study(
-                args.run_dir, config, backend="serial" if args.ask else args.backend, workers=args.workers,
-                address=args.address, max_episodes=args.max_episodes,
-                progress=not args.no_progress and not getattr(args, "quiet", 0),
+                args.run_dir, config, backend="live" if runner else "serial" if args.ask else args.backend,
+                workers=args.workers, address=args.address, max_episodes=args.max_episodes,
+                progress=not args.no_progress and not getattr(args, "quiet", 0) and runner is None,
                 between_strategies=between, answered=answered,
-                allow_version_change=args.allow_version_change,
+                allow_version_change=args.allow_version_change, runner=runner,
             )  # fmt: skip
+    except StudyPaused as e:
+        print(
+            f"\nphri study: {e}; every finished episode is kept. Resume with: phri study {args.run_dir} "
+            f"--robot {args.robot} --host {args.host} --live"
+        )
+        return 0
     except (PhriError, ImportError, FileExistsError) as e:
         return _fail("study", e)
     except ConnectionError as e:  # e.g. `--backend ray --address auto` with no cluster running

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from phri._extras import require
+from phri._extras import check, require
 from phri.exceptions import InvalidParameterError
 from phri.study.parallel import Backend, check_backend, make_backend
 from phri.study.protocol import EpisodeSpec, StudyConfig
@@ -56,6 +56,7 @@ def run_study(
     between_strategies: Callable[[int, str], None] | None = None,
     answered: Callable[[int, str], bool] | None = None,
     allow_version_change: bool = False,
+    runner: Callable[[StudyConfig, int], Backend] | None = None,
 ) -> StudyRun:
     """Runs the study `config` into `run_dir`, or resumes it: episodes already in results.csv are
     kept and skipped. With `config` None the folder's own study is resumed (or the default study is
@@ -69,11 +70,16 @@ def run_study(
     every block finished before this call and not answered yet (a questionnaire lost to an
     interruption is asked on resume), and not for answered blocks.
 
+    `runner(config, log_width)`, if given, makes what runs the episodes instead of `backend` (which
+    then only names it): the live study's runner on a real arm (:mod:`phri.study.live`), which runs
+    serially in this process, so the questionnaire hooks work with it.
+
     `workers` must be >= 1 (None: the CPUs available; for backend "ray", the Ray cluster's CPUs). A
     folder started with another phri version is refused (:class:`~phri.study.errors.StudyMismatchError`)
     unless `allow_version_change`.
     """
-    _check_arguments(backend, workers, max_episodes, between_strategies)  # before the folder is touched
+    # Before the folder is touched.
+    _check_arguments(backend, workers, max_episodes, between_strategies, custom=runner is not None)
     began = time.perf_counter()
     store = ResultStore.open(run_dir, config, allow_version_change=allow_version_change)
     config = store.config
@@ -88,15 +94,19 @@ def run_study(
             pending = pending[:max_episodes]
         ran = 0
         if pending:
-            runner = make_backend(backend, config, workers, store.log_width, address)
+            episodes = (
+                runner(config, store.log_width)
+                if runner is not None
+                else make_backend(backend, config, workers, store.log_width, address)
+            )
             try:
-                ran = _run_pending(store, runner, pending, resumed, progress, backend, on_episode,
+                ran = _run_pending(store, episodes, pending, resumed, progress, backend, on_episode,
                                    between_strategies, answered)  # fmt: skip
             finally:
-                runner.close()
+                episodes.close()
                 store.export()
         store.export(sort_csv=store.complete)
-        workers_used = runner.workers if pending else 0
+        workers_used = episodes.workers if pending else 0
         return StudyRun(
             Path(run_dir), config, len(store.specs), resumed, ran, store.complete,
             time.perf_counter() - began, backend, workers_used,
@@ -110,14 +120,19 @@ def _check_arguments(
     workers: int | None,
     max_episodes: int | None,
     between_strategies: Callable[[int, str], None] | None,
+    custom: bool = False,
 ) -> None:
-    """Refuses run_study arguments that cannot work, with a typed error naming the argument."""
+    """Refuses run_study arguments that cannot work, with a typed error naming the argument.
+    `custom`: a runner of the caller's runs the episodes (serially; `backend` only names it)."""
     if max_episodes is not None and max_episodes < 0:
         raise InvalidParameterError(f"max_episodes must be >= 0, got {max_episodes}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise InvalidParameterError(
             f"workers must be an integer >= 1 (leave it out for the CPUs available), got {workers!r}"
         )
+    if custom:
+        check(("pandas", "tqdm"), "a study")  # the results table and the progress bar
+        return
     if between_strategies is not None and backend != "serial":
         raise InvalidParameterError("between_strategies (the questionnaire) needs backend='serial'")
     check_backend(backend)

@@ -182,6 +182,23 @@ def test_the_loop_needs_the_laws_gravity_and_valid_settings() -> None:
         loop_over(FakeArm()).run(np.zeros(6), 1.0)
 
 
+@pytest.mark.parametrize(
+    "q_start", [START + 1j, np.ma.masked_array(START, mask=START > 3), [1.0, [2.0]], START.astype(str)]
+)
+def test_a_start_that_is_not_real_numbers_is_refused_not_cast(q_start) -> None:
+    # Found by the fuzz suite: a complex start lost its imaginary part with only a warning.
+    with pytest.raises(TypeError, match="^q_start must be an array of real numbers, got "):
+        loop_over(FakeArm()).run(q_start, 1.0)
+
+
+def test_a_run_whose_log_would_not_fit_is_refused_before_it_starts() -> None:
+    # Found by the fuzz suite: hold_time=1e12 asked numpy for a 7 TiB log.
+    with pytest.raises(InvalidParameterError, match=r"^duration \+ hold_time .* more than 1000000 rows"):
+        loop_over(FakeArm(), hold_time=1e12).run(START, 1.0)
+    with pytest.raises(InvalidParameterError, match=r"^duration \+ hold_time"):
+        loop_over(FakeArm()).run(START, 1.7e308)
+
+
 @pytest.mark.parametrize("value", [-1, 2**32, 10**100])
 def test_a_late_ticks_count_out_of_range_names_the_argument(value: int) -> None:
     # Not PyO3's bare OverflowError ("out of range integral type conversion attempted").
@@ -259,6 +276,19 @@ def test_a_non_finite_position_ends_the_motion_at_once_without_a_command() -> No
     result = loop_over(arm).run(START, 1.0, check=False)
     assert result.stop is not None and (result.stop.reason, result.stop.quantity) == ("non_finite", "q")
     assert result.held == 0.0 and len(arm.commands) == 30 and arm.stops == 1
+    assert all(np.isfinite(c).all() for c in arm.commands)
+
+
+@pytest.mark.parametrize(("field", "value"), [("q", 1e12), ("qd", 1e300), ("tau_ext", -1e300)])
+def test_an_absurd_finite_reading_stops_the_arm_as_a_non_finite_one_does(field: str, value: float) -> None:
+    """Found by the fuzz suite: a reading beyond ±1e9 passed the safety layer (or crossed a limit),
+    and then the learner or the hold's impedance law refused it with an error instead of a stop."""
+    arm = FakeArm(script=at(30, _bump(1, value, field)))
+    result = loop_over(arm).run(START, 1.0, check=False)
+    assert result.stop is not None and (result.stop.reason, result.stop.quantity) == ("non_finite", field)
+    assert "beyond ±1e9" in result.stop.message and arm.stops == 1
+    # A position or velocity reading cannot be held from; the person's torque can.
+    assert (result.held == 0.0) == (field != "tau_ext")
     assert all(np.isfinite(c).all() for c in arm.commands)
 
 

@@ -1012,9 +1012,9 @@ def test_from_urdf_defaults_to_the_shipped_chain(robot: phri.Robot, draw_q):
 @pytest.mark.parametrize(
     ("kwargs", "cls", "message"),
     [
-        ({"mass": -0.3}, ex.InvalidParameterError, r"^mass must be a finite mass >= 0 kg, got -0.3"),
-        ({"mass": float("nan")}, ex.InvalidParameterError, r"^mass must be a finite mass"),
-        ({"mass": float("inf")}, ex.InvalidParameterError, r"^mass must be a finite mass"),
+        ({"mass": -0.3}, ex.InvalidParameterError, r"^mass must be in \[0, 1000\] kg, got -0.3"),
+        ({"mass": float("nan")}, ex.InvalidParameterError, r"^mass must be in \[0, 1000\] kg"),
+        ({"mass": float("inf")}, ex.InvalidParameterError, r"^mass must be in \[0, 1000\] kg"),
         ({"mass": 0.3, "com": [0.0, 0.0]}, ex.ShapeError, r"^com must have shape \(3,\), got \(2,\)"),
         ({"mass": 0.3, "com": [0.0, np.nan, 0.0]}, ex.NonFiniteError, r"^com must be finite"),
         (
@@ -1086,10 +1086,10 @@ def test_random_configurations_helper_respects_limits(robot: phri.Robot):
 )
 def test_inputs_that_are_not_numbers_are_a_type_error_naming_the_argument(robot: phri.Robot, bad) -> None:
     with pytest.raises(
-        TypeError, match=r"^argument 'q': expected numbers \(an array, a list or a number\), got "
+        TypeError, match=r"^argument 'q': expected real numbers \(an array, a list or a number\), got "
     ):
         robot.gravity(bad)
-    with pytest.raises(TypeError, match=r"^argument 'waypoints': expected numbers"):
+    with pytest.raises(TypeError, match=r"^argument 'waypoints': expected real numbers"):
         phri.TimedTrajectory(bad, 15.0)
 
 
@@ -1161,3 +1161,116 @@ def test_bad_carried_tables_name_the_file_and_key(tmp_path: Path, carried, extra
     path = _description(tmp_path, carried, extra)
     with pytest.raises(error, match="^" + re.escape(f"{path}: ") + ".*" + re.escape(message)):
         phri.Robot.from_description(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# what a URDF may cost (issue 16 #14)
+
+
+def test_a_fifo_or_folder_is_refused_at_once_not_read(tmp_path: Path) -> None:
+    import os
+    import threading
+
+    fifo = tmp_path / "robot.urdf"
+    os.mkfifo(fifo)
+    result: list[BaseException | None] = []
+
+    def load() -> None:
+        try:
+            phri.Robot.from_urdf(fifo)
+            result.append(None)
+        except BaseException as e:  # noqa: BLE001 - handed to the test thread
+            result.append(e)
+
+    thread = threading.Thread(target=load, daemon=True)
+    thread.start()
+    thread.join(10)
+    if thread.is_alive():  # the old reader blocked here for ever; unblock it before failing
+        with open(fifo, "w"):
+            pass
+        pytest.fail("Robot.from_urdf blocked on a FIFO")
+    assert isinstance(result[0], ex.UrdfError)
+    assert "not a regular file (a FIFO, socket or device)" in str(result[0])
+    with pytest.raises(ex.UrdfError, match=r"^path: cannot read .*it is a folder"):
+        phri.Robot.from_urdf(tmp_path)
+    robot = phri.Robot.jaco2()
+    with pytest.raises(ex.UrdfError, match="not a regular file"):
+        robot.with_attached_urdf("cup", "j2s7s300_link_7", fifo)
+
+
+@pytest.mark.parametrize("depth", [65, 16_000, 200_000])
+def test_deeply_nested_xml_is_refused_in_linear_time(depth: int, tmp_path: Path) -> None:
+    """urdf-rs took quadratic time in the depth and overflowed its stack (a segfault) at ~16,000."""
+    doc = '<robot name="r"><link name="a"/>' + "<x>" * depth + "</x>" * depth + "</robot>"
+    nested = r"^urdf: not a valid URDF document \(elements nested more than 64 deep"
+    with pytest.raises(ex.UrdfError, match=nested):
+        phri.Robot.from_urdf_string(doc)
+    path = tmp_path / "deep.urdf"
+    path.write_text(doc)
+    with pytest.raises(ex.UrdfError, match=rf"^path: '{re.escape(str(path))}': .*nested more than 64 deep"):
+        phri.Robot.jaco2().with_attached_urdf("cup", "j2s7s300_link_7", path)
+
+
+def test_a_robot_description_larger_than_the_limit_is_refused(tmp_path: Path) -> None:
+    big = tmp_path / "big.urdf"
+    with open(big, "wb") as f:
+        f.write(b'<robot name="r"><link name="a"/>')
+        f.write(b" " * (32 << 20))
+        f.write(b"</robot>")
+    with pytest.raises(ex.UrdfError, match=r"larger than a robot description may be \(33554432 bytes\)"):
+        phri.Robot.from_urdf(big)
+
+
+def _one_cylinder_link(radius: str, length: str) -> str:
+    return (
+        '<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/>'
+        '<inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial>'
+        f'<collision><geometry><cylinder radius="{radius}" length="{length}"/></geometry></collision></link>'
+        '<joint name="j" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>'
+    )
+
+
+def test_a_cylinder_far_longer_than_thick_is_covered_by_a_bounded_number_of_spheres() -> None:
+    """Found by the URDF proptest: the sphere count overflowed (a panic in debug builds, in release
+    a link silently left without spheres, so collision checks ignored it)."""
+    robot = phri.Robot.from_urdf_string(_one_cylinder_link("1e-300", "1"))
+    centers, radii, _ = robot.collision_spheres("b")
+    assert 1 <= len(radii) <= 64
+    assert np.ptp(centers[:, 2]) + 2 * radii.max() >= 1.0  # the spheres still span the cylinder
+    with pytest.raises(ex.UrdfError, match=r"not a distance in \(0, 1000\] m"):
+        phri.Robot.from_urdf_string(_one_cylinder_link("1e200", "1"))
+
+
+def test_urdf_parsing_releases_the_gil() -> None:
+    """Other Python threads run while a description is read (it held the GIL: issue 16 #14). The
+    other thread notes the time as it runs; with the GIL held it could note none while the call is
+    in the middle of its work."""
+    import threading
+    import time
+
+    text = (importlib.resources.files("phri") / "robots" / "jaco2" / "j2s7s300.urdf").read_text()
+    big = text.replace("<robot", "<!--" + "x" * (20 << 20) + "-->\n<robot", 1)
+    seen: list[float] = []
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            seen.append(time.perf_counter())
+            for _ in range(200):
+                pass
+
+    thread = threading.Thread(target=spin)
+    thread.start()
+    try:
+        time.sleep(0.05)
+        start = time.perf_counter()
+        phri.Robot.from_urdf_string(big)
+        end = time.perf_counter()
+    finally:
+        stop.set()
+        thread.join()
+    margin = 0.2 * (end - start)
+    inside = [t for t in seen if start + margin < t < end - margin]
+    assert end - start > 0.05, "the parse was too short to tell"
+    assert inside, f"the other thread did not run during the {end - start:.2f} s parse"

@@ -66,6 +66,7 @@ F_COLUMNS: dict[str, str] = {
     "f_interaction_time": "interaction_time",
     "f_cost": "cost_error",
 }
+#: Every column a targets file may have, in any order (``task`` and ``strategy`` are required).
 COLUMNS = ("task", "strategy", *MEASURES, *(f"{m}_sd" for m in MEASURES), *F_COLUMNS, "df_error")
 
 
@@ -112,6 +113,7 @@ class Targets:
 
     @property
     def strategies(self) -> list[str]:
+        """The strategies with cell targets, in file order."""
         return list(dict.fromkeys(c.strategy for c in self.cells))
 
     def check_tasks(self, available: Sequence[str], what: str, pooled: bool = True) -> None:

@@ -84,4 +84,6 @@ class ParticipantParams:
         )  # fmt: skip
 
     def as_dict(self) -> dict[str, float]:
+        """Every parameter by name, in SI units, in :data:`PARAMETERS` order (a study's
+        ``participants.csv`` lists each person this way)."""
         return asdict(self)

@@ -98,6 +98,8 @@ class TaskView:
         self.pose = np.eye(4)
 
     def reset(self) -> None:
+        """Start comparing from the desired behaviour's first point again (:attr:`progress` only
+        moves forward while the person looks)."""
         self.progress = 0
 
     def look(self, q: np.ndarray) -> list[Correction]:

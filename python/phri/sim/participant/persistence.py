@@ -27,6 +27,9 @@ _SLACK = 1e-9
 
 
 class State(Enum):
+    """What the person is doing: watching for an error they can fix, pushing (a bout), pausing after
+    letting go, or given up for the rest of the attempt (their ``patience`` [s] spent)."""
+
     WATCHING = "watching"
     PUSHING = "pushing"
     PAUSING = "pausing"

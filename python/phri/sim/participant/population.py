@@ -60,6 +60,7 @@ __all__ = [
     "Distribution",
     "Population",
     "default_population",
+    "load_population",
     "population_names",
 ]
 

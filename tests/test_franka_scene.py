@@ -347,25 +347,20 @@ def test_faults_are_parsed_and_refused_clearly() -> None:
 
 
 def test_the_person_pushes_the_hand_and_the_robot_measures_j_transpose_w() -> None:
-    """The table task: a joint-space spring lifts the cup 6 cm above the start, where the participant
-    sees it too high (they judge the path's shape, not its timing: an arm standing at the start
-    looks right to them), then zero torque: they push the hand down, the hand moves along the push,
-    and tau_ext is phri's Jᵀ·w."""
-    start = load_task("fr3_table").start
-    jacobian = FR3.jacobian(HAND, start)[:3]
-    lifted = start + np.linalg.pinv(jacobian) @ np.array([0.0, 0.0, 0.06])
-    release = 1200  # ticks of the spring (the arm settles); zero torque after
+    """The table task: the hand is lifted for 0.3 s, then left free (zero torque); the participant
+    sees the cup too high and pushes the hand down, the hand moves along the push, and tau_ext is
+    phri's Jᵀ·w."""
     with SimServer("127.0.15.2", realtime=REALTIME, task="table", seed=3) as server:
         backend = FrankaBackend(server.host, FR3, realtime=False)
         rows = []
         try:
             first = backend.start(np.zeros(7))
-            np.testing.assert_allclose(first.q, start, atol=1e-4)
-            for k in range(3000):
+            np.testing.assert_allclose(first.q, load_task("fr3_table").start, atol=1e-4)
+            for k in range(1500):
                 state = backend.read()
                 assert state.fault is None
-                spring = 60.0 * (lifted - state.q) - 8.0 * state.qd
-                backend.write(spring if k < release else np.zeros(7))
+                up = np.array([0, 0, 15.0, 0, 0, 0])  # N: a lift for the first 0.3 s
+                backend.write(FR3.jacobian(HAND, state.q).T @ up if k < 300 else np.zeros(7))
                 wrench = -np.asarray(backend.raw.O_F_ext_hat_K)  # the person's, on the robot
                 rows.append((state.t, state.q, state.tau_ext, wrench))
         finally:
@@ -375,21 +370,24 @@ def test_the_person_pushes_the_hand_and_the_robot_measures_j_transpose_w() -> No
     tau = np.array([r[2] for r in rows])
     w = np.array([r[3] for r in rows])
     pushing = np.linalg.norm(w[:, :3], axis=1) > 1.0
-    assert 0 < np.argmax(pushing) and pushing[release:].sum() > 200, "the person never pushed"
-    onset = release + int(np.argmax(pushing[release:]))  # the arm free from here on
+    assert 0 < np.argmax(pushing) and pushing.sum() > 200, "the person never pushed"
+    onset = int(np.argmax(pushing))
     # tau_ext is the push through phri's Jacobian of the hand (MuJoCo computed it), at every tick.
-    touching = np.any(w != 0.0, axis=1)  # a push building up or relaxing too
-    for k in np.nonzero(touching)[0]:
+    for k in np.nonzero(np.any(w != 0, axis=1))[0]:
         expected = FR3.jacobian(HAND, q[k]).T @ w[k]
         np.testing.assert_allclose(tau[k], expected, atol=1e-3 + 2e-3 * np.abs(expected).max())
-    assert np.all(tau[~touching] == 0.0)
-    # The hand moves along the push (the arm is free: zero torque, gravity compensated).
-    window = slice(onset, onset + 100)
+    assert np.all(tau[np.all(w == 0, axis=1)] == 0.0)  # hands off: nothing measured
+    # Once the lift ends, the push changes the hand's velocity along itself (the arm is free: zero
+    # torque, gravity compensated).
+    start = max(onset, 300)
+    window = slice(start, start + 100)
+    assert pushing[window].all(), "the person pushes on after the lift"
     hand = np.array([FR3.frame_pose(HAND, qk)[:3, 3] for qk in q[window]])
-    moved = hand[-1] - hand[0]
+    tw = t[window]
+    gained = (hand[-1] - hand[-11]) / (tw[-1] - tw[-11]) - (hand[10] - hand[0]) / (tw[10] - tw[0])
     force = w[window, :3].mean(axis=0)
-    assert np.linalg.norm(moved) > 1e-3
-    assert moved @ force / (np.linalg.norm(moved) * np.linalg.norm(force)) > 0.7
+    assert np.linalg.norm(gained) > 1e-3
+    assert gained @ force / (np.linalg.norm(gained) * np.linalg.norm(force)) > 0.7
     # The robot's clock: one millisecond per tick but for this machine's own late ticks.
     steps = np.round(np.diff(t) * 1e3)
     assert steps.min() >= 1 and np.mean(steps == 1) > 0.9
@@ -489,7 +487,7 @@ def test_sim_server_serves_a_task_until_ctrl_c() -> None:
         assert robot.read_once().robot_mode == pylibfranka.RobotMode.Idle
         del robot
         process.send_signal(signal.SIGINT)
-        assert process.wait(timeout=20) == 0
+        assert process.wait(timeout=60) == 0  # seconds on a loaded machine
     finally:
         if process.poll() is None:
             process.kill()

@@ -150,7 +150,7 @@ class CalibrationResult:
 
     @property
     def reached(self) -> bool:
-        """Whether the best population meets every target within the tolerance."""
+        """Whether the best population meets every target within the tolerance (no :attr:`misses`)."""
         return not self.misses
 
     def table(self) -> str:
@@ -167,7 +167,9 @@ class CalibrationResult:
         return "\n".join(lines)
 
     def miss_message(self) -> str:
-        """The targets missed, in words (the error message of a calibration that misses)."""
+        """One line naming each missed target with the achieved value, the target and the relative
+        difference, and the best loss after how many candidates: what :func:`write_population` says
+        when it refuses, and records in the population when the misses are accepted."""
         parts = [
             f"{r['task']}{'/' + r['strategy'] if r['strategy'] else ''} {r['statistic']}: "
             f"{r['simulated']:.4g} against {r['reference']:.4g} ({(r['ratio'] - 1) * 100:+.0f} %)"

@@ -66,7 +66,7 @@ F_COLUMNS: dict[str, str] = {
     "f_interaction_time": "interaction_time",
     "f_cost": "cost_error",
 }
-#: The columns of a targets CSV file, in order.
+#: Every column a targets file may have, in any order (``task`` and ``strategy`` are required).
 COLUMNS = ("task", "strategy", *MEASURES, *(f"{m}_sd" for m in MEASURES), *F_COLUMNS, "df_error")
 
 

@@ -85,7 +85,8 @@ class Participant:
 
     @property
     def state(self) -> State:
-        """What the person is doing now: watching, pushing, pausing, or given up."""
+        """What the person is doing now (:class:`~phri.sim.participant.persistence.State`): watching,
+        pushing, pausing after a bout, or given up for the rest of this attempt."""
         return self.persistence.state
 
     @property

@@ -23,7 +23,8 @@ class Parameter:
     below: bool = False
 
     def allows(self, v: float) -> bool:
-        """Whether `v` (in the parameter's unit) is finite and within the allowed range."""
+        """Whether `v` (in the parameter's `unit`) is an allowed value: finite and within `low` and
+        `high` (strictly where `above` or `below` say so)."""
         if not math.isfinite(v):
             return False
         low_ok = v > self.low if self.above else v >= self.low
@@ -32,7 +33,8 @@ class Parameter:
 
     @property
     def expected(self) -> str:
-        """The allowed range in words, for messages ("a finite number >= 0")."""
+        """The allowed range in words, for error messages: e.g. ``"a finite number > 0"`` or
+        ``"a number >= 0 and <= 1"``."""
         lo = f"> {self.low:g}" if self.above else f">= {self.low:g}"
         if math.isinf(self.high):
             return f"a finite number {lo}"

@@ -84,5 +84,6 @@ class ParticipantParams:
         )  # fmt: skip
 
     def as_dict(self) -> dict[str, float]:
-        """Every parameter by name, in its SI unit (:data:`PARAMETERS` order)."""
+        """Every parameter by name, in SI units, in :data:`PARAMETERS` order (a study's
+        ``participants.csv`` lists each person this way)."""
         return asdict(self)

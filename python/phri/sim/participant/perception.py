@@ -98,7 +98,8 @@ class TaskView:
         self.pose = np.eye(4)
 
     def reset(self) -> None:
-        """Compares with the desired behaviour from its first point again (a new attempt)."""
+        """Start comparing from the desired behaviour's first point again (:attr:`progress` only
+        moves forward while the person looks)."""
         self.progress = 0
 
     def look(self, q: np.ndarray) -> list[Correction]:

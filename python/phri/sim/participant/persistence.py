@@ -27,8 +27,8 @@ _SLACK = 1e-9
 
 
 class State(Enum):
-    """What the person is doing: watching the robot, pushing it, pausing to see what it does after
-    a push, or having given up on correcting it for this attempt."""
+    """What the person is doing: watching for an error they can fix, pushing (a bout), pausing after
+    letting go, or given up for the rest of the attempt (their ``patience`` [s] spent)."""
 
     WATCHING = "watching"
     PUSHING = "pushing"

@@ -54,6 +54,7 @@ __all__ = [
     "Distribution",
     "Population",
     "default_population",
+    "load_population",
     "population_names",
 ]
 
@@ -82,7 +83,8 @@ class Distribution:
     values: tuple[tuple[str, float], ...]
 
     def get(self, key: str, default: float | None = None) -> float | None:
-        """The distribution's value `key` (e.g. "median"), or `default` when it has none."""
+        """The value of `key` (e.g. ``"median"``, ``"max"``) in the parameter's SI unit (``sigma``:
+        of the natural log, unitless), or `default` if the distribution does not give it."""
         return dict(self.values).get(key, default)
 
     def quantile(self, u: float) -> float:
@@ -107,7 +109,8 @@ class Distribution:
         return self.quantile(0.5)
 
     def to_dict(self) -> dict[str, Any]:
-        """The distribution as a population file's [parameters.<name>] table."""
+        """The distribution as its ``[parameters.<name>]`` table of a population file:
+        ``{"distribution": kind, key: value, ...}``."""
         return {"distribution": self.kind, **dict(self.values)}
 
 
@@ -166,7 +169,8 @@ class Population:
         return Population.from_dict(data, source or self.source)
 
     def to_dict(self) -> dict[str, Any]:
-        """The population as a parsed population file ([about] and [parameters.<name>] tables)."""
+        """The population as a parsed population file (``about`` if it has provenance, and
+        ``parameters``): :meth:`from_dict` reads it back equal; a study keeps it in ``study.json``."""
         out: dict[str, Any] = {}
         if self.about:
             out["about"] = dict(self.about)

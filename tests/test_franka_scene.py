@@ -476,9 +476,11 @@ def test_stopping_a_server_while_its_output_is_read_leaves_no_thread_error(
 
 def test_sim_server_serves_a_task_until_ctrl_c() -> None:
     command = [sys.executable, "-m", "phri", "sim-server", "--task", "human", "--host", "127.0.15.4"]
+    # Started with SIGINT ignored, as a shell starts a background job: Ctrl-C must stop it all the same.
     process = subprocess.Popen(
-        command + ["--realtime", "2", "--seed", "5"], stdout=subprocess.PIPE, text=True
-    )
+        command + ["--realtime", "2", "--seed", "5"], stdout=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )  # fmt: skip
     try:
         assert process.stdout is not None
         line = process.stdout.readline()
@@ -487,7 +489,8 @@ def test_sim_server_serves_a_task_until_ctrl_c() -> None:
         assert robot.read_once().robot_mode == pylibfranka.RobotMode.Idle
         del robot
         process.send_signal(signal.SIGINT)
-        assert process.wait(timeout=60) == 0  # seconds on a loaded machine
+        process.communicate(timeout=60)  # seconds on a loaded machine
+        assert process.returncode == 0
     finally:
         if process.poll() is None:
             process.kill()

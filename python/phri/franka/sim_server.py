@@ -15,6 +15,7 @@ import dataclasses
 import ipaddress
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -284,6 +285,9 @@ def run(args: argparse.Namespace) -> int:
         if task is None:
             raise InvalidParameterError("--duration needs --task (the bare FR3 has no task to shorten)")
         task = dataclasses.replace(task, duration=check_duration(args.duration))
+    # Ctrl-C stops the server, also when it was started with SIGINT ignored (a shell starts a
+    # background job so, and Python then installs no handler: Ctrl-C would be ignored for good).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     serve(
         args.host,
         task=task,

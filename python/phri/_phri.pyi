@@ -535,6 +535,7 @@ class Learner:
         replan_iterations: int = 0,
         seeds: int = 0,
         replan_latency: float | None = 0.0,
+        worker_spin: float = 0.0,
     ) -> Learner: ...
     def observe(self, t: float, tau_measured: _Array) -> tuple[bool, bool, bool]:
         """(sampled, interacted, replanned); replanned: a replan's outcome arrived at this call

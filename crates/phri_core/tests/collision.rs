@@ -160,6 +160,49 @@ fn the_study_plans_keep_every_margin_along_the_executed_curve() {
 }
 
 #[test]
+fn a_plans_objective_is_its_terms_at_any_weights() {
+    // objective_terms takes the objective apart (the learner compares a seed with the warm start
+    // at new weights by it): the features' terms at unit weight and the penalties, here the
+    // full collision model's and the step limit's, on plans near and inside the keep-outs.
+    let model = Arc::new(common::jaco2_with_cup());
+    let l7 = model.frame_id("j2s7s300_link_7").unwrap();
+    let mut penalised = 0;
+    for (task, _) in TASK_FILES {
+        let mut fs = study_features(model.clone(), l7, &["efficiency", task]);
+        let mut opt = TrajectoryOptimizer::new(&fs, WAYPOINTS, planner(&model, &task_scene(task))).unwrap();
+        let (start, goal) = (pose(task, "start"), pose(task, "goal"));
+        let mut plan = vec![0.0; WAYPOINTS * 7];
+        opt.solve(&mut fs, &[1.0, 0.0], &start, &goal, None, &mut plan).unwrap();
+        for (k, v) in plan.iter_mut().enumerate().skip(7).take(29 * 7) {
+            *v += 0.05 * (k as f64 * 0.37).sin(); // off the optimum, penalties active
+        }
+        let mut terms = [0.0; 2];
+        let penalty = opt.objective_terms(&mut fs, &plan, &mut terms).unwrap();
+        let mut grad = vec![0.0; WAYPOINTS * 7];
+        for w in [[1.0, 0.0], [1.0, 0.3 * true_weight(task)], [0.5, true_weight(task)], [0.0, 2.0]] {
+            let (cost, pen) = opt.objective(&mut fs, &w, &plan, &mut grad).unwrap();
+            let from_terms = w[0] * terms[0] + w[1] * terms[1] + penalty;
+            assert_eq!(pen, penalty, "{task} {w:?}");
+            assert!((cost - from_terms).abs() <= 1e-12 * cost.abs().max(1.0), "{task} {w:?}: {cost} vs {from_terms}");
+        }
+        penalised += usize::from(penalty > 0.0);
+    }
+    assert!(penalised >= 3, "only {penalised} of the perturbed plans touch a penalty");
+    let (mut fs, mut opt) = {
+        let fs = study_features(model.clone(), l7, &["efficiency", "table"]);
+        let opt = TrajectoryOptimizer::new(&fs, WAYPOINTS, planner(&model, &task_scene("table"))).unwrap();
+        (fs, opt)
+    };
+    let plan = vec![0.0; WAYPOINTS * 7];
+    let message = |e: phri_core::PhriError| e.to_string();
+    assert!(message(opt.objective_terms(&mut fs, &plan, &mut [0.0; 3]).unwrap_err()).starts_with("terms"));
+    assert!(message(opt.objective_terms(&mut fs, &plan[7..], &mut [0.0; 2]).unwrap_err()).starts_with("trajectory"));
+    let mut bad = plan.clone();
+    bad[40] = f64::NAN;
+    assert!(message(opt.objective_terms(&mut fs, &bad, &mut [0.0; 2]).unwrap_err()).starts_with("trajectory"));
+}
+
+#[test]
 fn variations_of_the_study_plans_keep_every_margin() {
     // Another start pose, the laptop moved, two learned features at once.
     assert_safe_plan(

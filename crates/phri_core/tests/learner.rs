@@ -413,6 +413,48 @@ fn a_superseded_solve_stops_at_its_next_iteration() {
 }
 
 #[test]
+fn a_spinning_worker_replans_as_a_sleeping_one_and_stops_with_the_learner() {
+    for seeds in [0, 5] {
+        let wall = LearnerParams { replan_latency: ReplanLatency::WallClock, seeds, ..Default::default() };
+        let mut sleeping = task_learner(LAPTOP, wall.clone());
+        let mut spinning = task_learner(LAPTOP, LearnerParams { worker_spin: f64::INFINITY, ..wall });
+        // The worker spins on a core of its own from the start; the first push's plan is the same.
+        let t0 = 3.0;
+        let tau = corrective(&sleeping, LAPTOP, t0);
+        for l in [&mut sleeping, &mut spinning] {
+            assert!(l.observe(t0, &tau).unwrap().interacted);
+            let mut k = 1;
+            while !l.observe(t0 + k as f64 * TICK, &[0.0; 7]).unwrap().adopted {
+                std::thread::sleep(std::time::Duration::from_micros(100));
+                k += 1;
+                assert!(k < 100_000, "seeds {seeds}: never adopted");
+            }
+        }
+        assert_eq!(sleeping.weights(), spinning.weights());
+        assert_eq!(sleeping.history().plans.last().unwrap().1, spinning.history().plans.last().unwrap().1, "seeds {seeds}");
+        let began = std::time::Instant::now();
+        drop(spinning);
+        assert!(began.elapsed().as_secs_f64() < 1.0, "dropping a spinning worker took {:?}", began.elapsed());
+    }
+}
+
+#[test]
+fn worker_spin_is_checked() {
+    let make = |worker_spin, replan_latency| {
+        let (feature, start, goal, gain, upper) = TABLE;
+        let params = LearnerParams { worker_spin, replan_latency, ..Default::default() };
+        try_learner(feature, start, goal, gain, upper, UpdateRule::All, params, TrajoptParams::default())
+    };
+    let message = |r: Result<Learner, phri_core::PhriError>| r.err().map(|e| e.to_string()).unwrap_or_default();
+    for bad in [-1e-3, f64::NAN, f64::NEG_INFINITY] {
+        let m = message(make(bad, ReplanLatency::WallClock));
+        assert!(m.starts_with("worker_spin must be a time >= 0 s"), "{bad}: {m}");
+    }
+    assert!(message(make(1.0, ReplanLatency::Fixed(0.0))).starts_with("worker_spin needs a replan worker"));
+    assert!(make(0.5, ReplanLatency::Fixed(0.01)).is_ok());
+}
+
+#[test]
 fn with_the_wall_clock_a_stalled_worker_never_holds_up_the_tick() {
     let mut l = task_learner(TABLE, LearnerParams { replan_latency: ReplanLatency::WallClock, ..Default::default() });
     let before = l.plan().waypoints().to_vec();

@@ -39,6 +39,12 @@ use crate::update::{PyUpdateInfo, PyWeightUpdate};
 /// - `None`: on a worker thread, adopted at the first `observe` after it finished (hardware: the
 ///   wall clock decides); `observe` then never waits.
 ///
+/// `worker_spin` [s]: with a worker, how long it busy-waits for the next push after starting and
+/// after each replan before it sleeps (0: it sleeps at once; `math.inf`: never). A sleeping worker
+/// is woken by the next push, which takes tens of µs on an idle real-time kernel and up to
+/// milliseconds on a loaded or virtual machine; spinning keeps one CPU core busy, so give the
+/// worker a core the control loop does not need.
+///
 /// With a worker, `observe` detects, deforms and updates (microseconds) and hands the replan over;
 /// a newer push supersedes a replan still running. Adopted plans blend in from the reference at the
 /// previous `observe`'s time. `observe(t, ...)` needs t in [0, duration + 0.01] s, never going back
@@ -126,12 +132,12 @@ impl PyLearner {
     #[pyo3(signature = (
         features, deformation, update, detector, optimizer, weights, start, goal, *,
         duration = 15.0, sample_period = 0.1, interpolation = "cubic", learning = true,
-        transition_speed = 0.8, replan_iterations = 0, seeds = 0, replan_latency = Some(0.0)
+        transition_speed = 0.8, replan_iterations = 0, seeds = 0, replan_latency = Some(0.0), worker_spin = 0.0
     ))]
     // Spelled out: the generated one would show `Some(0.0)` as `...`.
     #[pyo3(text_signature = "(features, deformation, update, detector, optimizer, weights, start, goal, *, \
         duration=15.0, sample_period=0.1, interpolation='cubic', learning=True, transition_speed=0.8, \
-        replan_iterations=0, seeds=0, replan_latency=0.0)")]
+        replan_iterations=0, seeds=0, replan_latency=0.0, worker_spin=0.0)")]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -151,6 +157,7 @@ impl PyLearner {
         #[pyo3(from_py_with = replan_iterations_arg)] replan_iterations: usize,
         #[pyo3(from_py_with = seeds_arg)] seeds: usize,
         replan_latency: Option<f64>,
+        worker_spin: f64,
     ) -> PyResult<Self> {
         let interpolation = match interpolation {
             "cubic" => Interpolation::Cubic,
@@ -174,6 +181,7 @@ impl PyLearner {
             replan_iterations,
             seeds,
             replan_latency,
+            worker_spin,
         };
         let (deformation, update, detector, optimizer) =
             (deformation.deformation.clone(), update.update.clone(), detector.detector.clone(), optimizer.optimizer.clone());

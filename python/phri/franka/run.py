@@ -31,7 +31,7 @@ from phri.config import Task
 from phri.exceptions import InvalidParameterError
 from phri.franka.episode import CONNECT_TIMEOUT, FrankaEpisode, FrankaOutcome, check_task_robot
 from phri.franka.move import MAX_MOVE, MOVE_SPEED
-from phri.sim.episode import STRATEGIES, EpisodeConfig, write_log
+from phri.sim.episode import STRATEGIES, WALL_CLOCK_SEEDS, EpisodeConfig, write_log
 
 __all__ = ["RunOutput", "add_arguments", "load_run_task", "run", "run_episode_at", "write_run"]
 
@@ -168,6 +168,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"seconds to wait for an answer at --host (default {CONNECT_TIMEOUT:g})",
     )  # fmt: skip
     add(
+        "--seeds", type=int, default=None,
+        help=f"seed plans per learned weight for the replans (default {WALL_CLOCK_SEEDS}; 0: none)",
+    )  # fmt: skip
+    add(
+        "--worker-spin", type=float, default=0.0,
+        help="seconds the replan worker busy-waits for the next push before it sleeps (default 0; "
+        "inf: never sleeps; keeps a CPU core busy, for a machine with one to spare)",
+    )  # fmt: skip
+    add(
         "--move-speed", type=float, default=MOVE_SPEED,
         help="the move to the start pose: its fastest joint peaks at this fraction of its rated "
         f"speed (default {MOVE_SPEED:g})",
@@ -178,7 +187,8 @@ def run(args: argparse.Namespace) -> int:
     """``phri run`` as `args` say; prints the summary. 0: the episode ran to its end; 1: it was
     stopped or failed (its log and summary are written)."""
     task = load_run_task(args.task, args.robot, args.duration)
-    config = EpisodeConfig() if args.sample_rate is None else EpisodeConfig(sample_rate=args.sample_rate)
+    rate = {} if args.sample_rate is None else {"sample_rate": args.sample_rate}
+    config = EpisodeConfig(**rate, seeds=args.seeds, worker_spin=args.worker_spin)
     output = run_episode_at(
         args.host, task, args.strategy, Path(args.out), config=config,
         connect_timeout=args.connect_timeout, move_speed=args.move_speed,

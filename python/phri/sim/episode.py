@@ -82,6 +82,11 @@ ORIGINAL_THRESHOLDS = (8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0)
 LATER_THRESHOLDS = (4.0, 5.0, 3.0, 4.0, 1.5, 1.5, 1.5)
 #: Longest simulated replan latency an episode accepts [s] (EpisodeConfig.replan_latency).
 MAX_REPLAN_LATENCY = 1.0
+#: Seed plans per learned weight when replans race the wall clock (a real arm; EpisodeConfig.seeds):
+#: a push that moves a weight far starts its replan from a plan made ahead for weights near the new
+#: ones (on the table task the first push's replan takes about 1-3 ms instead of 50-75 ms,
+#: benches/learning.rs).
+WALL_CLOCK_SEEDS = 5
 
 
 @dataclass(frozen=True)
@@ -117,6 +122,16 @@ class EpisodeConfig:
     #: gives exactly the results of replanning within the tick (Algorithm 1 as written); 0 replans
     #: inline, in the tick itself.
     replan_latency: float = 0.001
+    #: Seed plans per learned weight for the replans (:class:`phri.Learner`'s ``seeds``: each
+    #: replan starts from the better of the current plan and the nearest plan made ahead on a grid
+    #: of the weights). None: WALL_CLOCK_SEEDS on a real arm, whose replans race the wall clock (if
+    #: every learned weight has finite bounds), none in simulation, where they do not.
+    seeds: int | None = None
+    #: With a replan worker, how long it busy-waits for the next push before it sleeps [s]
+    #: (:class:`phri.Learner`'s ``worker_spin``; 0: at once, ``math.inf``: never). On a real arm
+    #: spinning saves the worker's wake-up at each push (tens of µs on an idle real-time kernel, up
+    #: to milliseconds on a loaded machine) for one CPU core kept busy: only with a core to spare.
+    worker_spin: float = 0.0
 
     def __post_init__(self) -> None:
         def fail(key: str, expected: str, got: Any, show: Any = str) -> Exception:
@@ -141,6 +156,12 @@ class EpisodeConfig:
             )
         if not (math.isfinite(self.replan_latency) and 0 <= self.replan_latency <= MAX_REPLAN_LATENCY):
             raise fail("replan_latency", f"a time in [0, {MAX_REPLAN_LATENCY:g}] s", self.replan_latency)
+        if self.seeds is not None and not (
+            isinstance(self.seeds, int) and not isinstance(self.seeds, bool) and self.seeds >= 0
+        ):
+            raise fail("seeds", "None or a whole number >= 0 (0: none; else at least 2)", self.seeds, repr)
+        if not (isinstance(self.worker_spin, (int, float)) and self.worker_spin >= 0):
+            raise fail("worker_spin", "a time >= 0 s (0: the worker sleeps at once; inf: never)", self.worker_spin)
         for key, positive in (("sensor_bias", False), ("thresholds", True), ("detector_bias", False)):
             value = getattr(self, key)
             if value is not None:
@@ -314,7 +335,15 @@ def make_learner(
     `replan_latency` [s]: a simulated episode's is ``config.replan_latency`` (0 replans inline, a
     positive time adopts the worker's plan that long after the push's sample, deterministically);
     None adopts it at the first tick after it is ready (a real arm's), see :class:`phri.Learner`.
-    `optimizer`: the replans' optimiser (default: the planner's)."""
+    `optimizer`: the replans' optimiser (default: the planner's). Seed plans: ``config.seeds``, by
+    default WALL_CLOCK_SEEDS when a learning episode replans on the wall clock and every learned
+    weight has finite bounds."""
+    seeds = config.seeds
+    if seeds is None:
+        learned = [f for f in task.features if f.learned]
+        bounded = all(math.isfinite(f.lower) and math.isfinite(f.upper) for f in learned)
+        replans = config.strategy == "learning" and replan_latency is None
+        seeds = WALL_CLOCK_SEEDS if replans and learned and bounded else 0
     update = WeightUpdate(
         task.vector("step"), task.vector("lower"), task.vector("upper"),
         learned=[f.learned for f in task.features], rule=config.rule,  # type: ignore[arg-type]
@@ -327,7 +356,7 @@ def make_learner(
         task.vector("initial"), task.start, task.goal,
         duration=task.duration, sample_period=1.0 / config.sample_rate,
         learning=config.strategy == "learning", transition_speed=config.transition_speed,
-        replan_latency=replan_latency,
+        replan_latency=replan_latency, seeds=seeds, worker_spin=config.worker_spin,
     )  # fmt: skip
 
 

@@ -336,6 +336,20 @@ impl FeatureSet {
         self.weighted_cost_evaluation(trajectory, waypoints, weights, grad, second_order, smoothing)
     }
 
+    /// Each feature's term of [`FeatureSet::weighted_cost_unchecked`]'s cost (no gradient) at unit
+    /// weight, into `terms` (one per feature): that cost at weights w is Σ w_k·terms[k] over the k
+    /// with w_k ≠ 0 (the cost skips the features of weight 0).
+    pub(crate) fn cost_terms_unchecked(&mut self, trajectory: &[f64], waypoints: usize, smoothing: f64, terms: &mut [f64]) {
+        self.ws.begin(waypoints);
+        terms.fill(0.0);
+        for i in 1..waypoints {
+            let mut seg = self.ws.segment(trajectory, i, smoothing);
+            for (k, f) in self.features.iter().enumerate() {
+                terms[k] += self.inv_range[k] * f.segment(&mut seg, None);
+            }
+        }
+    }
+
     /// [`FeatureSet::weighted_cost_unchecked`] after the workspace's `begin` (kept or streaming).
     fn weighted_cost_evaluation(
         &mut self,

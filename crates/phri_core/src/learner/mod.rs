@@ -101,6 +101,14 @@ pub struct LearnerParams {
     /// a worker thread after a simulated latency `Fixed(L)` [s] (0 < L ≤ `duration`), or on a
     /// worker thread as soon as it is done (`WallClock`, hardware). See the module docs.
     pub replan_latency: ReplanLatency,
+    /// How long the replan worker busy-waits for the next request, after it starts and after each
+    /// replan, before it sleeps [s] (0: it sleeps at once, the default; `f64::INFINITY`: it never
+    /// sleeps while the learner lives). A sleeping worker must be woken by the next correction,
+    /// which takes tens of microseconds on an idle real-time kernel but up to milliseconds on a
+    /// loaded or virtual machine (benches/learning.rs measures both). Spinning keeps one CPU core
+    /// busy: use it on a machine with a core to spare for the worker, never where the spinning
+    /// would take the control loop's or the simulator's core. Worker modes only.
+    pub worker_spin: f64,
 }
 
 /// Most seed plans a learner keeps (`LearnerParams::seeds`).
@@ -128,6 +136,7 @@ impl Default for LearnerParams {
             replan_iterations: 0,
             seeds: 0,
             replan_latency: ReplanLatency::default(),
+            worker_spin: 0.0,
         }
     }
 }
@@ -265,9 +274,13 @@ impl Learner {
             optimizer.set_max_iterations(params.replan_iterations.min(full_cap))?;
         }
         let plan = TimedTrajectory::new(plan0.clone(), n, params.duration, params.interpolation)?;
-        let planner = Planner::new(features.clone(), optimizer, start, goal, seeds, levels);
+        let planner = Planner::new(features.clone(), optimizer, start, goal, seeds, levels)?;
         let replanner = if params.replan_latency.uses_worker() {
-            Replanner::Worker(ReplanWorker::spawn(planner, k)?)
+            Replanner::Worker(ReplanWorker::spawn(
+                planner,
+                k,
+                Duration::try_from_secs_f64(params.worker_spin).unwrap_or(Duration::MAX),
+            )?)
         } else {
             Replanner::Inline(Box::new(planner))
         };
@@ -703,6 +716,21 @@ fn check_params(params: &LearnerParams) -> Result<()> {
             }
         }
         ReplanLatency::WallClock => {}
+    }
+    if !(params.worker_spin >= 0.0) {
+        return Err(PhriError::invalid(
+            "worker_spin",
+            format!("must be a time >= 0 s (0: the worker sleeps at once; inf: it never sleeps), got {}", params.worker_spin),
+        ));
+    }
+    if params.worker_spin > 0.0 && !params.replan_latency.uses_worker() {
+        return Err(PhriError::invalid(
+            "worker_spin",
+            format!(
+                "needs a replan worker (replan_latency > 0, or the wall clock); this learner replans inline, got {}",
+                params.worker_spin
+            ),
+        ));
     }
     if params.replan_latency.uses_worker() && params.replan_iterations > 0 {
         return Err(PhriError::invalid(

@@ -28,6 +28,32 @@ pub fn infeasibility(info: &TrajoptInfo, optimizer: &TrajectoryOptimizer) -> Str
     reasons.join("; ")
 }
 
+/// A plan's objective as a function of the weights, which it is linear in
+/// ([`TrajectoryOptimizer::objective_terms`]): comparing the warm start with a seed at new weights
+/// then costs no evaluation.
+struct PlanCost {
+    plan: Vec<f64>,
+    terms: Vec<f64>,
+    penalty: f64,
+}
+
+impl PlanCost {
+    fn of(optimizer: &mut TrajectoryOptimizer, features: &mut FeatureSet, plan: &[f64]) -> Result<Self> {
+        let mut terms = vec![0.0; features.len()];
+        let penalty = optimizer.objective_terms(features, plan, &mut terms)?;
+        Ok(PlanCost { plan: plan.to_vec(), terms, penalty })
+    }
+
+    /// The plan's objective at `weights`.
+    fn at(&self, weights: &[f64]) -> f64 {
+        self.terms.iter().zip(weights).filter(|(_, w)| **w != 0.0).map(|(t, w)| w * t).sum::<f64>() + self.penalty
+    }
+}
+
+/// Plan costs kept for warm starts ([`Planner::prime`]): the plan the robot tracks, the worker's
+/// candidate, and one more (the initial plan, which a reset goes back to).
+const PLAN_COSTS_KEPT: usize = 3;
+
 /// Replans over [0, T] from the original start to the goal.
 pub(super) struct Planner {
     features: FeatureSet,
@@ -46,8 +72,9 @@ pub(super) struct Planner {
     adopted: PlanLevels,
     /// The initial plan's levels, for `Learner::reset`.
     initial: PlanLevels,
-    // Scratch of the seed comparison.
-    seed_grad: Vec<f64>,
+    /// The seeds' plan costs, and those of recent warm starts (newest last), with seeds only.
+    seed_costs: Vec<PlanCost>,
+    plan_costs: Vec<PlanCost>,
 }
 
 impl Planner {
@@ -59,9 +86,8 @@ impl Planner {
         goal: &[f64],
         seeds: Seeds,
         levels: PlanLevels,
-    ) -> Self {
-        let len = levels.plan().len();
-        Planner {
+    ) -> Result<Self> {
+        let mut planner = Planner {
             features,
             optimizer,
             start: start.to_vec(),
@@ -71,23 +97,60 @@ impl Planner {
             adopted: levels.clone(),
             initial: levels.clone(),
             levels,
-            seed_grad: vec![0.0; len],
+            seed_costs: Vec::new(),
+            plan_costs: Vec::new(),
+        };
+        for k in 0..planner.seeds.plans.len() {
+            let cost = PlanCost::of(&mut planner.optimizer, &mut planner.features, planner.seeds.plans[k].plan())?;
+            planner.seed_costs.push(cost);
         }
+        if !planner.seed_costs.is_empty() {
+            let cost = PlanCost::of(&mut planner.optimizer, &mut planner.features, planner.initial.plan())?;
+            planner.keep(cost);
+        }
+        Ok(planner)
     }
 
     /// Replans for `weights` into `replanned`, warm-started from `levels` or, if its plan costs
     /// less at `weights`, the seed nearest them.
     pub(super) fn solve(&mut self, weights: &[f64]) -> Result<TrajoptInfo> {
-        let mut init = &self.levels;
+        let mut from_seed = None;
         if let Some(seed) = self.seeds.nearest(weights) {
-            let seed = &self.seeds.plans[seed];
-            let (here, _) = self.optimizer.objective(&mut self.features, weights, init.plan(), &mut self.seed_grad)?;
-            let (there, _) = self.optimizer.objective(&mut self.features, weights, seed.plan(), &mut self.seed_grad)?;
-            if there < here {
-                init = seed;
+            let here = match self.plan_costs.iter().find(|c| c.plan == self.levels.plan()) {
+                Some(cost) => cost.at(weights),
+                None => {
+                    let cost = PlanCost::of(&mut self.optimizer, &mut self.features, self.levels.plan())?;
+                    let here = cost.at(weights);
+                    self.keep(cost);
+                    here
+                }
+            };
+            if self.seed_costs[seed].at(weights) < here {
+                from_seed = Some(seed);
             }
         }
+        let init = from_seed.map_or(&self.levels, |seed| &self.seeds.plans[seed]);
         self.optimizer.solve_levels(&mut self.features, weights, &self.start, &self.goal, Some(init), &mut self.replanned)
+    }
+
+    /// With seeds, works out the cost of `plan` (a likely next warm start) ahead, so that the
+    /// replan from it compares it with a seed at no cost: the worker primes each result after
+    /// posting it, off the control side's wait.
+    pub(super) fn prime(&mut self, plan: &[f64]) -> Result<()> {
+        if self.seed_costs.is_empty() || self.plan_costs.iter().any(|c| c.plan == plan) {
+            return Ok(());
+        }
+        let cost = PlanCost::of(&mut self.optimizer, &mut self.features, plan)?;
+        self.keep(cost);
+        Ok(())
+    }
+
+    /// Keeps `cost`, forgetting the oldest beyond [`PLAN_COSTS_KEPT`].
+    fn keep(&mut self, cost: PlanCost) {
+        if self.plan_costs.len() == PLAN_COSTS_KEPT {
+            self.plan_costs.remove(0);
+        }
+        self.plan_costs.push(cost);
     }
 
     /// Why the last replan is infeasible.

@@ -33,6 +33,10 @@ const LIVENESS_CHECK: Duration = Duration::from_millis(20);
 /// A stalled worker (test hook) checks this often whether it is being shut down.
 const STALL_STEP: Duration = Duration::from_millis(5);
 
+/// A spinning worker looks at the clock (and yields its core once) every this many checks for a
+/// request.
+const SPINS_PER_CLOCK: u32 = 256;
+
 /// What a replan came to.
 #[derive(Debug)]
 pub(super) enum Outcome {
@@ -64,6 +68,9 @@ struct Posted {
 struct Shared {
     /// Generation of the newest request: a solve of any other stops ([`Cancellation`]).
     latest: Arc<AtomicU64>,
+    /// Generation of the request in the request slot, stored once the slot holds it: what a
+    /// spinning worker watches.
+    delivered: AtomicU64,
     request: Mutex<Request>,
     result: Mutex<Posted>,
     /// Signalled when a result is posted.
@@ -103,11 +110,13 @@ pub(super) struct ReplanWorker {
 
 impl ReplanWorker {
     /// Starts the worker with `planner` (whose warm start is the initial plan, generation 0), for
-    /// `k` weights.
-    pub(super) fn spawn(planner: Planner, k: usize) -> Result<Self> {
+    /// `k` weights; it busy-waits `spin` for each next request before it sleeps
+    /// (`LearnerParams::worker_spin`).
+    pub(super) fn spawn(planner: Planner, k: usize, spin: Duration) -> Result<Self> {
         let request = Request { generation: 0, base: 0, weights: vec![0.0; k] };
         let shared = Arc::new(Shared {
             latest: Arc::new(AtomicU64::new(0)),
+            delivered: AtomicU64::new(0),
             request: Mutex::new(request.clone()),
             result: Mutex::new(Posted { generation: 0, outcome: None }),
             posted: Condvar::new(),
@@ -115,7 +124,7 @@ impl ReplanWorker {
             stall_nanos: AtomicU64::new(0),
             panic_next: AtomicBool::new(false),
         });
-        let worker = Worker::new(shared.clone(), planner, k);
+        let worker = Worker::new(shared.clone(), planner, k, spin);
         let thread = std::thread::Builder::new()
             .name("phri-replan".into())
             .spawn(move || worker.run())
@@ -157,6 +166,7 @@ impl ReplanWorker {
         slot.base = self.outbox.base;
         slot.weights.copy_from_slice(&self.outbox.weights);
         drop(slot);
+        self.shared.delivered.store(self.outbox.generation, Ordering::Release);
         self.undelivered = false;
         if let Some(thread) = &self.thread {
             thread.thread().unpark();
@@ -232,12 +242,37 @@ struct Worker {
     /// Generation of the plan in `planner.levels` (the warm start).
     levels_generation: u64,
     weights: Vec<f64>,
+    /// How long to busy-wait for a request before sleeping.
+    spin: Duration,
 }
 
 impl Worker {
-    fn new(shared: Arc<Shared>, planner: Planner, k: usize) -> Self {
+    fn new(shared: Arc<Shared>, planner: Planner, k: usize, spin: Duration) -> Self {
         let candidate = planner.levels.clone();
-        Worker { shared, planner, candidate, candidate_generation: None, levels_generation: 0, weights: vec![0.0; k] }
+        Worker { shared, planner, candidate, candidate_generation: None, levels_generation: 0, weights: vec![0.0; k], spin }
+    }
+
+    /// Waits for a request newer than `taken`: busy for up to `spin` (yielding the core now and
+    /// then to whatever else is runnable), then asleep until the control side unparks it. May
+    /// return early (a spurious wake-up, shutdown); the caller looks again.
+    fn wait(&self, taken: u64) {
+        let began = Instant::now();
+        let mut spins = 0u32;
+        while !self.spin.is_zero() {
+            if self.shared.delivered.load(Ordering::Acquire) > taken || self.shared.shutdown.load(Ordering::Acquire) {
+                return;
+            }
+            std::hint::spin_loop();
+            spins += 1;
+            if spins == SPINS_PER_CLOCK {
+                spins = 0;
+                if began.elapsed() >= self.spin {
+                    break;
+                }
+                std::thread::yield_now();
+            }
+        }
+        std::thread::park();
     }
 
     fn run(mut self) {
@@ -251,7 +286,7 @@ impl Worker {
                 })
             };
             let Some((generation, base)) = job else {
-                std::thread::park();
+                self.wait(taken);
                 continue;
             };
             taken = generation;
@@ -281,6 +316,11 @@ impl Worker {
             slot.outcome = Some(outcome);
             drop(slot);
             self.shared.posted.notify_all();
+            if self.candidate_generation == Some(generation) {
+                // The next replan likely starts from this plan: its cost, ahead of the request.
+                // (A failure here fails that replan's own evaluation too, and is reported there.)
+                let _ = self.planner.prime(self.candidate.plan());
+            }
         }
     }
 

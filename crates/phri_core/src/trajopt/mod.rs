@@ -210,6 +210,31 @@ impl TrajectoryOptimizer {
         Ok(result)
     }
 
+    /// [`TrajectoryOptimizer::objective`] of `trajectory` taken apart, since it is linear in the
+    /// weights: each feature's term at unit weight into `terms` (one per feature), and the
+    /// returned penalty (clearance, collision and step penalties, which no weight scales). The
+    /// objective at weights w is Σ w_k·terms[k] (over w_k ≠ 0) + the penalty: a plan's cost at
+    /// many weights for the price of one evaluation.
+    pub fn objective_terms(&mut self, features: &mut FeatureSet, trajectory: &[f64], terms: &mut [f64]) -> Result<f64> {
+        let (n, m) = (self.dof, self.waypoints);
+        if features.model().nq() != n {
+            return Err(PhriError::invalid("features", "belong to a robot with a different number of joints"));
+        }
+        if trajectory.len() != m * n {
+            return Err(PhriError::shape("trajectory", format!("({m}, {n})"), format!("{} values", trajectory.len())));
+        }
+        if terms.len() != features.len() {
+            return Err(PhriError::shape("terms", format!("({},)", features.len()), format!("{} values", terms.len())));
+        }
+        check_finite("trajectory", trajectory)?;
+        self.trial.copy_from_slice(trajectory);
+        features.cost_terms_unchecked(&self.trial, m, self.params.smoothing, terms);
+        // With every weight 0 the evaluation is the penalties alone.
+        let zeros = vec![0.0; features.len()];
+        let (_, penalty) = self.evaluate(features, &zeros, Buffer::Trial, Derivatives::Gradient);
+        Ok(penalty)
+    }
+
     /// Minimises w·Φ(ξ) (+ clearance penalty) from `init` (warm start on these waypoints only;
     /// `None` = the straight line, coarse to fine), with `start` and `goal` fixed, writing the plan
     /// into `out` (N × n row-major). To warm-start through the coarse levels, see

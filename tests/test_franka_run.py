@@ -10,14 +10,17 @@ task duration override, on the client and on the server alike) to keep the suite
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import io
 import json
+import math
 import sys
 import time
 from collections.abc import Iterator
 from importlib import resources
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -42,6 +45,7 @@ REALTIME = 3.0
 FAST_MOVE = 3 * MOVE_SPEED
 FR3 = Robot.fr3()
 LIMITS = safety_limits(FR3, "fr3", load_task("fr3_table"))
+FR3_THRESHOLDS = phri.robots.load("fr3").thresholds
 
 
 def short_table(duration: float) -> phri.config.Task:
@@ -181,6 +185,49 @@ def test_on_the_fr3_the_loop_holds_the_wrist_with_the_gains_of_its_description()
         ControlLoop(_StuckFR3(start), hold, controller, LIMITS, implicit=1)  # type: ignore[arg-type]
     with pytest.raises(phri.exceptions.InvalidParameterError, match="duration must be a finite time > 0 s"):
         JointMove(start, start, 0.0)
+
+
+def test_learning_on_the_wall_clock_replans_from_seed_plans(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A real arm's replans race the wall clock: by default they start from the nearest of
+    WALL_CLOCK_SEEDS seed plans per learned weight where that helps; simulated episodes, impedance
+    and unbounded weights plan none; ``phri run --seeds/--worker-spin`` reach the learner."""
+    import phri.franka.run as run_module
+    import phri.sim.episode as episode_module
+
+    made: list[dict] = []
+    monkeypatch.setattr(episode_module, "Learner", lambda *args, **kwargs: made.append(kwargs))
+    task = load_task("fr3_table")
+    planner = SimpleNamespace(features=None, optimizer=None)
+    open_ended = tuple(dataclasses.replace(f, upper=math.inf) if f.learned else f for f in task.features)
+    unbounded = dataclasses.replace(task, features=open_ended)
+    cases = [
+        (task, EpisodeConfig(), None, episode_module.WALL_CLOCK_SEEDS),
+        (task, EpisodeConfig(), 0.001, 0),
+        (task, EpisodeConfig(strategy="impedance"), None, 0),
+        (unbounded, EpisodeConfig(), None, 0),
+        (task, EpisodeConfig(seeds=3), 0.001, 3),
+        (task, EpisodeConfig(seeds=0), None, 0),
+    ]
+    for case_task, config, latency, seeds in cases:
+        make_learner(case_task, planner, config, FR3_THRESHOLDS, replan_latency=latency)  # type: ignore[arg-type]
+        assert made[-1]["seeds"] == seeds and made[-1]["worker_spin"] == 0.0, (config, latency)
+    make_learner(task, planner, EpisodeConfig(worker_spin=math.inf), FR3_THRESHOLDS, replan_latency=None)  # type: ignore[arg-type]
+    assert made[-1]["worker_spin"] == math.inf
+
+    configs: list[EpisodeConfig] = []
+
+    def run_episode_at(*args: object, config: EpisodeConfig, **kwargs: object) -> None:
+        configs.append(config)
+        raise ZeroDivisionError  # stops phri run here, before any connection
+
+    monkeypatch.setattr(run_module, "run_episode_at", run_episode_at)
+    parser = argparse.ArgumentParser()
+    run_module.add_arguments(parser)
+    common = ["--robot", "fr3", "--host", "127.0.0.1", "--task", "fr3_table", "--strategy", "learning"]
+    for extra, seeds, spin in [([], None, 0.0), (["--seeds", "2", "--worker-spin", "inf"], 2, math.inf)]:
+        with pytest.raises(ZeroDivisionError):
+            run_module.run(parser.parse_args(common + extra))
+        assert (configs[-1].seeds, configs[-1].worker_spin) == (seeds, spin)
 
 
 def test_the_move_is_minimum_jerk_and_peaks_at_its_speed() -> None:

@@ -827,3 +827,33 @@ def test_bad_replan_latencies_are_refused(make, latency):
 def test_a_budget_needs_inline_replans(make):
     with pytest.raises(ex.InvalidParameterError, match="^replan_iterations budgets inline replans only"):
         make(replan_latency=None, replan_iterations=3)
+
+
+@pytest.mark.parametrize("spin", [-0.001, np.nan, -np.inf])
+def test_bad_worker_spins_are_refused(make, spin):
+    with pytest.raises(ex.InvalidParameterError, match="^worker_spin must be a time >= 0 s"):
+        make(replan_latency=None, worker_spin=spin)
+
+
+def test_worker_spin_needs_a_worker(make):
+    with pytest.raises(ex.InvalidParameterError, match="^worker_spin needs a replan worker"):
+        make(worker_spin=1.0)
+
+
+def test_a_spinning_worker_replans_and_stops_with_the_learner(robot, make):
+    # The worker busy-waits for pushes from the start (a core of its own): the plan a push gives is
+    # the sleeping worker's, and dropping the learner stops it.
+    plans = []
+    for spin in (0.0, np.inf):
+        learner = make(replan_latency=None, seeds=3, worker_spin=spin)
+        learner.observe(4.0, push_torque(robot, learner, 4.0))
+        for k in range(1, 100_000):
+            time.sleep(1e-4)
+            learner.observe(4.0 + k * TICK, np.zeros(7))
+            if len(learner.history().plan_t) == 2:
+                break
+        plans.append(learner.history().plans[-1])
+        began = time.monotonic()
+        del learner
+        assert time.monotonic() - began < 1.0
+    np.testing.assert_array_equal(plans[0], plans[1])

@@ -161,7 +161,9 @@ class EpisodeConfig:
         ):
             raise fail("seeds", "None or a whole number >= 0 (0: none; else at least 2)", self.seeds, repr)
         if not (isinstance(self.worker_spin, (int, float)) and self.worker_spin >= 0):
-            raise fail("worker_spin", "a time >= 0 s (0: the worker sleeps at once; inf: never)", self.worker_spin)
+            raise fail(
+                "worker_spin", "a time >= 0 s (0: the worker sleeps at once; inf: never)", self.worker_spin
+            )
         for key, positive in (("sensor_bias", False), ("thresholds", True), ("detector_bias", False)):
             value = getattr(self, key)
             if value is not None:

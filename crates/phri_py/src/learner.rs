@@ -28,7 +28,8 @@ use crate::update::{PyUpdateInfo, PyWeightUpdate};
 /// `observe` call on each level (0: to convergence at once); an unfinished replan goes on at the
 /// next calls from where it stopped (`replan_pending`).
 /// `seeds` plans s values of every learned weight between its bounds at construction (s^L plans,
-/// at most 64) and starts each replan from the better of the current plan and the nearest seed.
+/// at most 64) and starts each replan from whichever of the current plan and the seeds costs least
+/// at the new weights.
 ///
 /// `replan_latency` says where replans run and when their plans take effect:
 /// - `0.0` (default): inline, inside `observe`, as Algorithm 1 is written.

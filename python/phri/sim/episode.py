@@ -123,8 +123,8 @@ class EpisodeConfig:
     #: inline, in the tick itself.
     replan_latency: float = 0.001
     #: Seed plans per learned weight for the replans (:class:`phri.Learner`'s ``seeds``: each
-    #: replan starts from the better of the current plan and the nearest plan made ahead on a grid
-    #: of the weights). None: WALL_CLOCK_SEEDS on a real arm, whose replans race the wall clock (if
+    #: replan starts from whichever of the current plan and the plans made ahead on a grid of the
+    #: weights costs least at the new weights). None: WALL_CLOCK_SEEDS on a real arm, whose replans race the wall clock (if
     #: every learned weight has finite bounds), none in simulation, where they do not.
     seeds: int | None = None
     #: With a replan worker, how long it busy-waits for the next push before it sleeps [s]

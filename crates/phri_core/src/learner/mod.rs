@@ -93,7 +93,8 @@ pub struct LearnerParams {
     /// Seed plans per learned weight (0: none). With s seeds, the learner plans at construction for
     /// s evenly spaced values of every learned weight between its bounds (s^L plans for L learned
     /// weights, at most [`MAX_SEEDS`]), and each replan starts from whichever of the current plan
-    /// and the seed nearest the new weights costs less at them. The authors' later code cached such
+    /// and the seeds costs least at the new weights (the plans' costs are linear in the weights:
+    /// their terms are worked out once, so comparing them costs no evaluation). The authors' later code cached such
     /// seeds on a weight grid against trajopt's local minima; here they also make the replan after a
     /// large update short.
     pub seeds: usize,
@@ -579,7 +580,7 @@ impl Learner {
     }
 
     /// Inline: replans over [0, T] from the original start, warm-started from the current plan
-    /// and its coarse plans (or the nearest seed's, if its plan costs less at the new weights),
+    /// and its coarse plans (or the seed's that costs least at the new weights, if it costs less),
     /// within the per-tick budget, and switches to the result at `t` if it is feasible; otherwise
     /// the robot keeps tracking its plan (the last feasible one) and the history records why.
     /// Returns the solve's info and whether the plan was adopted.

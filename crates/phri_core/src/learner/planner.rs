@@ -111,12 +111,13 @@ impl Planner {
         Ok(planner)
     }
 
-    /// Replans for `weights` into `replanned`, warm-started from `levels` or, if its plan costs
-    /// less at `weights`, the seed nearest them.
+    /// Replans for `weights` into `replanned`, warm-started from `levels` or from the seed plan
+    /// that costs least at `weights` if it costs less than `levels`' plan (the costs are the
+    /// plans' terms at the new weights: no evaluation).
     pub(super) fn solve(&mut self, weights: &[f64]) -> Result<TrajoptInfo> {
         let mut from_seed = None;
-        if let Some(seed) = self.seeds.nearest(weights) {
-            let here = match self.plan_costs.iter().find(|c| c.plan == self.levels.plan()) {
+        if !self.seed_costs.is_empty() {
+            let mut least = match self.plan_costs.iter().find(|c| c.plan == self.levels.plan()) {
                 Some(cost) => cost.at(weights),
                 None => {
                     let cost = PlanCost::of(&mut self.optimizer, &mut self.features, self.levels.plan())?;
@@ -125,8 +126,11 @@ impl Planner {
                     here
                 }
             };
-            if self.seed_costs[seed].at(weights) < here {
-                from_seed = Some(seed);
+            for (k, seed) in self.seed_costs.iter().enumerate() {
+                let there = seed.at(weights);
+                if there < least {
+                    (least, from_seed) = (there, Some(k));
+                }
             }
         }
         let init = from_seed.map_or(&self.levels, |seed| &self.seeds.plans[seed]);

@@ -1,5 +1,5 @@
 //! Seed plans on a grid of the learned weights (`LearnerParams::seeds`): each replan starts from
-//! whichever of the current plan and the nearest seed costs less at the new weights.
+//! whichever of the current plan and the seeds costs least at the new weights.
 
 use super::MAX_SEEDS;
 use crate::error::{PhriError, Result};
@@ -10,10 +10,7 @@ use crate::update::WeightUpdate;
 /// Plans converged on a grid of the learned weights (see [`LearnerParams::seeds`]).
 #[derive(Default)]
 pub(super) struct Seeds {
-    weights: Vec<Vec<f64>>,
     pub(super) plans: Vec<PlanLevels>,
-    /// 1 / (upper − lower) of each learned weight, 0 for the others: distances in bound units.
-    scale: Vec<f64>,
 }
 
 impl Seeds {
@@ -53,11 +50,7 @@ impl Seeds {
                 ),
             ));
         }
-        let mut seeds = Seeds { scale: vec![0.0; weights.len()], ..Default::default() };
-        for &k in &learned {
-            let span = p.upper[k] - p.lower[k];
-            seeds.scale[k] = if span > 0.0 { 1.0 / span } else { 0.0 };
-        }
+        let mut seeds = Seeds::default();
         for index in 0..count as usize {
             let mut w = weights.to_vec();
             let mut rest = index;
@@ -68,16 +61,8 @@ impl Seeds {
             }
             let mut plan = optimizer.plan_levels();
             optimizer.solve_levels(features, &w, start, goal, None, &mut plan)?;
-            seeds.weights.push(w);
             seeds.plans.push(plan);
         }
         Ok(seeds)
-    }
-
-    /// The seed whose weights are nearest `weights` (in units of each learned weight's bounds).
-    pub(super) fn nearest(&self, weights: &[f64]) -> Option<usize> {
-        let distance =
-            |s: &[f64]| -> f64 { s.iter().zip(weights).zip(&self.scale).map(|((a, b), c)| ((a - b) * c).powi(2)).sum() };
-        (0..self.weights.len()).min_by(|&a, &b| distance(&self.weights[a]).total_cmp(&distance(&self.weights[b])))
     }
 }

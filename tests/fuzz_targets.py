@@ -28,11 +28,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fake_arm import FakeArm
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import phri
-from phri.control import ControlLoop, RobotState, SafetyLayer, safety_limits
+from phri.control import ControlLoop, SafetyLayer, safety_limits
 from phri.exceptions import NotConvergedError, PhriError, PlanningError
 from phri.robots import impedance_controller
 from phri.robots import load as load_description
@@ -712,40 +713,14 @@ def _safety_tick(layer: SafetyLayer, t: Any, q: Any, qd: Any, tau_ext: Any, tau:
 READING = st.lists(reals(-5.0, 5.0), min_size=N, max_size=N).map(np.array)
 
 
-class _FakeArm:
-    """An in-memory JACO2 that holds still at Q_MID, except that from tick `at` on its reading is
-    `reading` (the robot's clock, q, qd or tau_ext replaced): a sensor fault, a frozen clock."""
-
-    gravity_compensated = True
-    period = PERIOD
-
-    def __init__(self, at: int, field: str, reading: Any) -> None:
-        self.robot, self.at, self.field, self.reading = JACO2, at, field, reading
-        self.k, self.commands = 0, []
-
-    def _state(self) -> RobotState:
-        state = RobotState(t=self.k * PERIOD, q=Q_MID.copy(), qd=np.zeros(N), tau_ext=np.zeros(N))
-        if self.k >= self.at:
-            setattr(state, self.field, self.reading)
-        return state
-
-    def start(self, q_start: np.ndarray) -> RobotState:
-        self.k = 0
-        return self._state()
-
-    def read(self) -> RobotState:
-        self.k += 1
-        return self._state()
-
-    def write(self, tau: np.ndarray) -> None:
-        self.commands.append(tau.copy())
-
-    def stop(self) -> None:
-        pass
-
-
 def _control_loop(*, fault: tuple[int, str, Any], q_start: Any, duration: Any, **kw: Any) -> Any:
-    arm = _FakeArm(*fault)
+    at, field, reading = fault
+    # The reading (the robot's clock, q, qd or tau_ext) replaced from tick `at` on: a sensor fault,
+    # a frozen clock.
+    arm = FakeArm(
+        JACO2, Q_MID, period=PERIOD, gravity_compensated=True,
+        script=lambda k, state: setattr(state, field, reading) if k >= at else None,
+    )  # fmt: skip
     loop = ControlLoop(
         arm, _learner(), phri.ImpedanceController(JACO2, gravity_compensation=True), LIMITS, **kw
     )

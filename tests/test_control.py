@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fake_arm import FakeArm
 from test_sim import shortened  # the study's tasks cut short, as the simulation tests use them
 
 import phri
@@ -40,52 +41,6 @@ from phri.robots import SafetySpec
 START = load_task("table").start
 PERIOD = 1e-3
 JACO2 = phri.Robot.jaco2()
-
-
-class FakeArm:
-    """An in-memory arm that holds still at `q` (a perfect position servo, as far as the loop can
-    tell) unless `script(k, state)` changes the tick-k state; `fail(k)` may raise instead of
-    returning it. It records every command written and every stop."""
-
-    def __init__(
-        self,
-        *,
-        gravity_compensated: bool = False,
-        script: Callable[[int, RobotState], None] | None = None,
-        fail: Callable[[int], None] | None = None,
-        fail_write: Callable[[int], None] | None = None,
-    ) -> None:
-        self.robot = JACO2
-        self.period = PERIOD
-        self.gravity_compensated = gravity_compensated
-        self.script, self.fail, self.fail_write = script, fail, fail_write
-        self.commands: list[np.ndarray] = []
-        self.stops = 0
-        self.k = 0
-
-    def _state(self) -> RobotState:
-        state = RobotState(t=self.k * PERIOD, q=START.copy(), qd=np.zeros(7), tau_ext=np.zeros(7))
-        if self.fail is not None:
-            self.fail(self.k)
-        if self.script is not None:
-            self.script(self.k, state)
-        return state
-
-    def start(self, q_start: np.ndarray) -> RobotState:
-        self.k = 0
-        return self._state()
-
-    def read(self) -> RobotState:
-        self.k += 1
-        return self._state()
-
-    def write(self, tau: np.ndarray) -> None:
-        if self.fail_write is not None:
-            self.fail_write(self.k)
-        self.commands.append(tau.copy())
-
-    def stop(self) -> None:
-        self.stops += 1
 
 
 class StillLearner:

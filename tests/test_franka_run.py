@@ -24,6 +24,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from fake_arm import FakeArm
 
 import phri
 from phri import Robot
@@ -134,31 +135,6 @@ def test_a_bad_transition_speed_is_a_clear_error(tmp_path: Path, value: str) -> 
         load(tmp_path / "robot.toml")
 
 
-class _StuckFR3:
-    """An FR3 held still (by friction, say) at `q`: the loop's commands are recorded."""
-
-    robot, period, gravity_compensated = FR3, 1e-3, True
-
-    def __init__(self, q: np.ndarray) -> None:
-        self.q, self.k, self.commands = q, 0, []
-
-    def _state(self) -> RobotState:
-        return RobotState(t=self.k * self.period, q=self.q.copy(), qd=np.zeros(7), tau_ext=np.zeros(7))
-
-    def start(self, q_start: np.ndarray) -> RobotState:
-        return self._state()
-
-    def read(self) -> RobotState:
-        self.k += 1
-        return self._state()
-
-    def write(self, tau: np.ndarray) -> None:
-        self.commands.append(tau.copy())
-
-    def stop(self) -> None:
-        pass
-
-
 def test_on_the_fr3_the_loop_holds_the_wrist_with_the_gains_of_its_description() -> None:
     """The loop's explicit law (a real arm's) pushes the wrist back with K·e, libfranka's examples'
     stiffness; the implicit law, which divides by phri's model's inertia (no rotors: joint 7's link
@@ -172,7 +148,7 @@ def test_on_the_fr3_the_loop_holds_the_wrist_with_the_gains_of_its_description()
     off = start + np.array([0, 0, 0, 0, 0, 0, 0.044])
     commands = {}
     for implicit in (False, True):
-        arm = _StuckFR3(off)
+        arm = FakeArm(FR3, off, gravity_compensated=True)  # held still (by friction, say) off its start
         hold = JointMove(start, start, 0.001, settle=0.02)
         controller = impedance_controller(FR3, "fr3")
         loop = ControlLoop(arm, hold, controller, LIMITS, implicit=implicit)  # type: ignore[arg-type]
@@ -182,7 +158,7 @@ def test_on_the_fr3_the_loop_holds_the_wrist_with_the_gains_of_its_description()
     np.testing.assert_allclose(commands[False][6], -50.0 * 0.044, rtol=1e-6)
     assert abs(commands[True][6]) < 0.2 * 50.0 * 0.044
     with pytest.raises(phri.exceptions.InvalidParameterError, match="implicit must be True or False"):
-        ControlLoop(_StuckFR3(start), hold, controller, LIMITS, implicit=1)  # type: ignore[arg-type]
+        ControlLoop(FakeArm(FR3, start, gravity_compensated=True), hold, controller, LIMITS, implicit=1)  # type: ignore[arg-type]
     with pytest.raises(phri.exceptions.InvalidParameterError, match="duration must be a finite time > 0 s"):
         JointMove(start, start, 0.0)
 

@@ -256,15 +256,15 @@ const POLL: Duration = Duration::from_micros(50);
 
 /// From a push's sample to the adopted plan, with the replan on the worker thread (wall clock):
 /// `sequences` sequences of [`PUSH_TIMES`] pushes per task (the learner reset between sequences;
-/// `seeds` seed plans per learned weight; with `spin` the worker busy-waits between replans),
+/// `seeds` seed plans per learned weight; with `spinning` the worker busy-waits between replans),
 /// polling `observe` every [`POLL`] until the plan is adopted. Prints per task the median, p99 and
 /// maximum of the push-to-adoption time; the worker's solve alone (`TrajoptInfo::seconds`) and the
 /// rest (push-to-adoption minus solve, push by push: the worker mode's own cost, waking threads on
-/// a shared machine, and with seeds the two cost evaluations that pick the warm start); the `observe`
+/// a shared machine, and with seeds the comparison of the plans' costs that picks the warm start); the `observe`
 /// that took the push; and quiet `observe` calls.
-fn push_to_adoption(sequences: usize, seeds: usize, spin: bool) {
+fn push_to_adoption(sequences: usize, seeds: usize, spinning: bool) {
     let model = Arc::new(jaco2_with_cup());
-    let worker_spin = if spin { f64::INFINITY } else { 0.0 };
+    let worker_spin = if spinning { f64::INFINITY } else { 0.0 };
     let params =
         LearnerParams { sample_period: 1e-3, replan_latency: ReplanLatency::WallClock, seeds, worker_spin, ..Default::default() };
     let ms = |d: Duration| format!("{:.3} ms", d.as_secs_f64() * 1e3);
@@ -274,7 +274,7 @@ fn push_to_adoption(sequences: usize, seeds: usize, spin: bool) {
     println!(
         "push to adopted plan, replans on the worker (wall clock), study planner N = 31, seeds {seeds}, polled every {POLL:?}, \
          the worker {}",
-        if spin { "spinning (worker_spin = inf)" } else { "asleep between replans (worker_spin = 0)" }
+        if spinning { "spinning (worker_spin = inf)" } else { "asleep between replans (worker_spin = 0)" }
     );
     println!(
         "  {:<8} {:>6} {:>10} {:>10} {:>10}   {:>21}   {:>21}   {:>22}   {:>24}",
@@ -358,7 +358,7 @@ fn main() {
     // Without seed plans, and with them (`LearnerParams::seeds`): the table task's first push jumps
     // its weight from 0 to its bound, a replan of about 70 Newton iterations from the current plan.
     // A sleeping worker is woken by each push; a spinning one (`LearnerParams::worker_spin`) is not.
-    for (seeds, spin) in [(0, false), (SEEDS, false), (SEEDS, true)] {
-        push_to_adoption(if benchmarking { 20 } else { 1 }, seeds, spin);
+    for (seeds, spinning) in [(0, false), (SEEDS, false), (SEEDS, true)] {
+        push_to_adoption(if benchmarking { 20 } else { 1 }, seeds, spinning);
     }
 }

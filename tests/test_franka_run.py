@@ -34,7 +34,7 @@ from phri.exceptions import ConfigError, ConnectionLostError, PlanningError, Saf
 from phri.franka.episode import FrankaEpisode
 from phri.franka.move import MOVE_SPEED, plan_move
 from phri.franka.sim_server import SimServer
-from phri.sim.episode import VELOCITY_MARGIN, EpisodeConfig, make_learner
+from phri.sim.episode import VELOCITY_MARGIN, EpisodeConfig, make_learner, replan_settings
 
 pytest.importorskip("pylibfranka", reason="phri[franka] is part of make dev")
 pytest.importorskip("franky_sim", reason="phri[franka-sim] is part of make dev")
@@ -163,10 +163,13 @@ def test_on_the_fr3_the_loop_holds_the_wrist_with_the_gains_of_its_description()
         JointMove(start, start, 0.0)
 
 
-def test_learning_on_the_wall_clock_replans_from_seed_plans(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A real arm's replans race the wall clock: by default they start from the nearest of
-    WALL_CLOCK_SEEDS seed plans per learned weight where that helps; simulated episodes, impedance
-    and unbounded weights plan none; ``phri run --seeds/--worker-spin`` reach the learner."""
+def test_the_learners_seed_plans_and_spin_on_a_real_arm_and_in_simulation(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A real arm's replans race the wall clock: by default the learner plans WALL_CLOCK_SEEDS seed
+    plans per learned weight (fewer where that many would pass MAX_SEEDS) for its replans to
+    start from; simulated episodes, impedance and unbounded weights plan none; an impedance episode
+    never spins; ``phri run --seeds/--worker-spin`` reach the learner."""
     import phri.franka.run as run_module
     import phri.sim.episode as episode_module
 
@@ -176,6 +179,14 @@ def test_learning_on_the_wall_clock_replans_from_seed_plans(monkeypatch: pytest.
     planner = SimpleNamespace(features=None, optimizer=None)
     open_ended = tuple(dataclasses.replace(f, upper=math.inf) if f.learned else f for f in task.features)
     unbounded = dataclasses.replace(task, features=open_ended)
+    learned = [f for f in task.features if f.learned]
+    assert len(learned) == 1
+    three = dataclasses.replace(
+        task, features=(*task.features, *(dataclasses.replace(learned[0], name=n) for n in "ab"))
+    )
+    seven = dataclasses.replace(
+        task, features=(*task.features, *(dataclasses.replace(learned[0], name=n) for n in "abcdef"))
+    )
     cases = [
         (task, EpisodeConfig(), None, episode_module.WALL_CLOCK_SEEDS),
         (task, EpisodeConfig(), 0.001, 0),
@@ -183,12 +194,17 @@ def test_learning_on_the_wall_clock_replans_from_seed_plans(monkeypatch: pytest.
         (unbounded, EpisodeConfig(), None, 0),
         (task, EpisodeConfig(seeds=3), 0.001, 3),
         (task, EpisodeConfig(seeds=0), None, 0),
+        (three, EpisodeConfig(), None, 4),  # 4³ = 64 = MAX_SEEDS
+        (seven, EpisodeConfig(), None, 0),  # 2⁷ > 64
     ]
+    assert episode_module.MAX_SEEDS == phri.Learner.MAX_SEEDS == 64
     for case_task, config, latency, seeds in cases:
-        make_learner(case_task, planner, config, FR3_THRESHOLDS, replan_latency=latency)  # type: ignore[arg-type]
-        assert made[-1]["seeds"] == seeds and made[-1]["worker_spin"] == 0.0, (config, latency)
-    make_learner(task, planner, EpisodeConfig(worker_spin=math.inf), FR3_THRESHOLDS, replan_latency=None)  # type: ignore[arg-type]
-    assert made[-1]["worker_spin"] == math.inf
+        assert replan_settings(case_task, config, latency) == (seeds, 0.0), (config, latency)
+    spinning = EpisodeConfig(worker_spin=math.inf)
+    assert replan_settings(task, spinning, None)[1] == math.inf
+    assert replan_settings(task, dataclasses.replace(spinning, strategy="impedance"), None) == (0, 0.0)
+    make_learner(task, planner, spinning, FR3_THRESHOLDS, replan_latency=None)  # type: ignore[arg-type]
+    assert (made[-1]["seeds"], made[-1]["worker_spin"]) == (episode_module.WALL_CLOCK_SEEDS, math.inf)
 
     configs: list[EpisodeConfig] = []
 

@@ -835,9 +835,13 @@ def test_bad_worker_spins_are_refused(make, spin):
         make(replan_latency=None, worker_spin=spin)
 
 
-def test_worker_spin_needs_a_worker(make):
+def test_worker_spin_needs_a_worker_and_learning(make):
     with pytest.raises(ex.InvalidParameterError, match="^worker_spin needs a replan worker"):
         make(worker_spin=1.0)
+    with pytest.raises(
+        ex.InvalidParameterError, match="^worker_spin must be 0 for a learner that does not learn"
+    ):
+        make(replan_latency=None, worker_spin=1.0, learning=False)
 
 
 def test_a_spinning_worker_replans_and_stops_with_the_learner(robot, make):

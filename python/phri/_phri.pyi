@@ -515,6 +515,7 @@ class PlanLevels:
 @final
 class Learner:
     TIME_SLACK: ClassVar[float]
+    MAX_SEEDS: ClassVar[int]
 
     def __new__(
         cls,

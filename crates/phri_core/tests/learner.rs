@@ -303,8 +303,8 @@ fn pushing(t: f64, windows: &[(f64, f64)]) -> bool {
 /// Runs a whole episode of 1 kHz ticks (observe, then reference, every tick) on an inline learner
 /// and on one whose worker replans with a latency of one tick, feeding both the torques of pushes
 /// computed on the inline learner's reference within `windows`; checks they agree bit for bit.
-fn check_one_tick_latency_is_inline(task: Task, sample_period: f64, windows: &[(f64, f64)]) {
-    let params = LearnerParams { sample_period, ..Default::default() };
+fn check_one_tick_latency_is_inline(task: Task, sample_period: f64, seeds: usize, windows: &[(f64, f64)]) {
+    let params = LearnerParams { sample_period, seeds, ..Default::default() };
     let mut inline = task_learner(task, params.clone());
     let mut worker = task_learner(task, LearnerParams { replan_latency: ReplanLatency::Fixed(TICK), ..params });
     let ticks = (15.0 / TICK).round() as usize;
@@ -346,11 +346,15 @@ fn check_one_tick_latency_is_inline(task: Task, sample_period: f64, windows: &[(
 #[test]
 fn a_one_tick_latency_reproduces_inline_replanning_bit_for_bit() {
     for task in [TABLE, LAPTOP] {
-        // 10 Hz samples (the study's), two corrections.
-        check_one_tick_latency_is_inline(task, 0.1, &[(4.0, 4.5), (8.0, 8.3)]);
+        // 10 Hz samples (the study's), two corrections; with seed plans too (the worker works out
+        // its results' costs ahead, inline replans when they are needed: the same warm starts).
+        for seeds in [0, 5] {
+            check_one_tick_latency_is_inline(task, 0.1, seeds, &[(4.0, 4.5), (8.0, 8.3)]);
+        }
     }
     // Samples at every tick: each tick adopts the previous tick's replan, then asks for the next.
-    check_one_tick_latency_is_inline(TABLE, TICK, &[(5.0, 5.008)]);
+    check_one_tick_latency_is_inline(TABLE, TICK, 0, &[(5.0, 5.008)]);
+    check_one_tick_latency_is_inline(LAPTOP, TICK, 5, &[(5.0, 5.008)]);
 }
 
 #[test]
@@ -451,6 +455,11 @@ fn worker_spin_is_checked() {
         assert!(m.starts_with("worker_spin must be a time >= 0 s"), "{bad}: {m}");
     }
     assert!(message(make(1.0, ReplanLatency::Fixed(0.0))).starts_with("worker_spin needs a replan worker"));
+    let (feature, start, goal, gain, upper) = TABLE;
+    let impedance =
+        LearnerParams { learning: false, worker_spin: 1.0, replan_latency: ReplanLatency::WallClock, ..Default::default() };
+    let m = message(try_learner(feature, start, goal, gain, upper, UpdateRule::All, impedance, TrajoptParams::default()));
+    assert!(m.starts_with("worker_spin must be 0 for a learner that does not learn"), "{m}");
     assert!(make(0.5, ReplanLatency::Fixed(0.01)).is_ok());
 }
 

@@ -3,7 +3,9 @@
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadwriteArray1, PyUntypedArrayMethods};
-use phri_core::learner::{History, Interaction, Learner, LearnerParams, ReplanLatency, DEFAULT_TRANSITION_SPEED, TIME_SLACK};
+use phri_core::learner::{
+    History, Interaction, Learner, LearnerParams, ReplanLatency, DEFAULT_TRANSITION_SPEED, MAX_SEEDS, TIME_SLACK,
+};
 use phri_core::reference::Interpolation;
 use pyo3::prelude::*;
 
@@ -128,6 +130,10 @@ impl PyLearner {
     /// `observe` accepts times up to this long after the task's duration [s].
     #[classattr]
     const TIME_SLACK: f64 = TIME_SLACK;
+
+    /// Most seed plans a learner keeps (`seeds` per learned weight, to the power of their number).
+    #[classattr]
+    const MAX_SEEDS: usize = MAX_SEEDS;
 
     #[new]
     #[pyo3(signature = (

@@ -31,7 +31,7 @@ from phri.config import Task
 from phri.exceptions import InvalidParameterError
 from phri.franka.episode import CONNECT_TIMEOUT, FrankaEpisode, FrankaOutcome, check_task_robot
 from phri.franka.move import MAX_MOVE, MOVE_SPEED
-from phri.sim.episode import STRATEGIES, WALL_CLOCK_SEEDS, EpisodeConfig, write_log
+from phri.sim.episode import STRATEGIES, WALL_CLOCK_SEEDS, EpisodeConfig, replan_settings, write_log
 
 __all__ = ["RunOutput", "add_arguments", "load_run_task", "run", "run_episode_at", "write_run"]
 
@@ -65,11 +65,13 @@ def load_run_task(name_or_path: str, robot: str, duration: float | None = None) 
     return task
 
 
-def summary_of(outcome: FrankaOutcome, task: Task, strategy: str, host: str) -> dict[str, Any]:
+def summary_of(outcome: FrankaOutcome, task: Task, config: EpisodeConfig, host: str) -> dict[str, Any]:
     """The episode's summary: the study's measures (the demo's row), the stop record (None without
-    a stop), the move to the start and the ticks on the robot's clock."""
+    a stop), the move to the start, the ticks on the robot's clock and the learner's replan
+    settings (seed plans per learned weight, the worker's spin [s], null for ever)."""
     result, stop = outcome.result, outcome.stop
-    summary: dict[str, Any] = {"host": host, "task": task.name, "strategy": strategy}
+    summary: dict[str, Any] = {"host": host, "task": task.name, "strategy": config.strategy}
+    summary["seeds"], summary["worker_spin"] = replan_settings(task, config, None)
     summary.update(result.row() if result is not None else {})
     summary["wall_peak_force"] = None if result is None else result.wall_peak_force
     summary["completed"] = outcome.error is None
@@ -114,7 +116,7 @@ def write_run(folder: Path, episode: FrankaEpisode, outcome: FrankaOutcome) -> R
     if result is not None:
         result.log = log
         figures = episode_figures(folder, task, episode.controls.planner, episode.model, {strategy: result})
-    summary = summary_of(outcome, task, strategy, host)
+    summary = summary_of(outcome, task, episode.config, host)
     if result is not None:
         row = result.row()
         text = io.StringIO()

@@ -82,11 +82,13 @@ ORIGINAL_THRESHOLDS = (8.0, 8.0, 8.0, 2.0, 1.0, 1.0, 1.0)
 LATER_THRESHOLDS = (4.0, 5.0, 3.0, 4.0, 1.5, 1.5, 1.5)
 #: Longest simulated replan latency an episode accepts [s] (EpisodeConfig.replan_latency).
 MAX_REPLAN_LATENCY = 1.0
-#: Seed plans per learned weight when replans race the wall clock (a real arm; EpisodeConfig.seeds):
-#: a push that moves a weight far starts its replan from a plan made ahead for weights near the new
-#: ones (on the table task the first push's replan takes about 1-3 ms instead of 50-75 ms,
-#: benches/learning.rs).
+#: Seed plans per learned weight when replans race the wall clock (a real arm; EpisodeConfig.seeds),
+#: fewer where that many would pass MAX_SEEDS: a push that moves a weight far starts its
+#: replan from a plan made ahead for weights near the new ones (on the study's table task the first
+#: push's replan takes about 1-3 ms instead of 35-55 ms, benches/learning.rs).
 WALL_CLOCK_SEEDS = 5
+#: Most seed plans a learner keeps (the core's; per learned weight to the power of their number).
+MAX_SEEDS = Learner.MAX_SEEDS
 
 
 @dataclass(frozen=True)
@@ -124,8 +126,8 @@ class EpisodeConfig:
     replan_latency: float = 0.001
     #: Seed plans per learned weight for the replans (:class:`phri.Learner`'s ``seeds``: each
     #: replan starts from whichever of the current plan and the plans made ahead on a grid of the
-    #: weights costs least at the new weights). None: WALL_CLOCK_SEEDS on a real arm, whose replans race the wall clock (if
-    #: every learned weight has finite bounds), none in simulation, where they do not.
+    #: weights costs least at the new weights). None: :func:`replan_settings` decides (seeds on a
+    #: real arm, whose replans race the wall clock; none in simulation, where they do not).
     seeds: int | None = None
     #: With a replan worker, how long it busy-waits for the next push before it sleeps [s]
     #: (:class:`phri.Learner`'s ``worker_spin``; 0: at once, ``math.inf``: never). On a real arm
@@ -157,10 +159,14 @@ class EpisodeConfig:
         if not (math.isfinite(self.replan_latency) and 0 <= self.replan_latency <= MAX_REPLAN_LATENCY):
             raise fail("replan_latency", f"a time in [0, {MAX_REPLAN_LATENCY:g}] s", self.replan_latency)
         if self.seeds is not None and not (
-            isinstance(self.seeds, int) and not isinstance(self.seeds, bool) and self.seeds >= 0
+            isinstance(self.seeds, int)
+            and not isinstance(self.seeds, bool)
+            and self.seeds != 1
+            and self.seeds >= 0
         ):
-            raise fail("seeds", "None or a whole number >= 0 (0: none; else at least 2)", self.seeds, repr)
-        if not (isinstance(self.worker_spin, (int, float)) and self.worker_spin >= 0):
+            raise fail("seeds", "None, 0 (none) or a whole number >= 2", self.seeds, repr)
+        spin = self.worker_spin
+        if not (isinstance(spin, (int, float)) and not isinstance(spin, bool) and spin >= 0):
             raise fail(
                 "worker_spin", "a time >= 0 s (0: the worker sleeps at once; inf: never)", self.worker_spin
             )
@@ -337,15 +343,9 @@ def make_learner(
     `replan_latency` [s]: a simulated episode's is ``config.replan_latency`` (0 replans inline, a
     positive time adopts the worker's plan that long after the push's sample, deterministically);
     None adopts it at the first tick after it is ready (a real arm's), see :class:`phri.Learner`.
-    `optimizer`: the replans' optimiser (default: the planner's). Seed plans: ``config.seeds``, by
-    default WALL_CLOCK_SEEDS when a learning episode replans on the wall clock and every learned
-    weight has finite bounds."""
-    seeds = config.seeds
-    if seeds is None:
-        learned = [f for f in task.features if f.learned]
-        bounded = all(math.isfinite(f.lower) and math.isfinite(f.upper) for f in learned)
-        replans = config.strategy == "learning" and replan_latency is None
-        seeds = WALL_CLOCK_SEEDS if replans and learned and bounded else 0
+    `optimizer`: the replans' optimiser (default: the planner's). Seed plans and the worker's spin:
+    :func:`replan_settings`."""
+    seeds, worker_spin = replan_settings(task, config, replan_latency)
     update = WeightUpdate(
         task.vector("step"), task.vector("lower"), task.vector("upper"),
         learned=[f.learned for f in task.features], rule=config.rule,  # type: ignore[arg-type]
@@ -358,8 +358,27 @@ def make_learner(
         task.vector("initial"), task.start, task.goal,
         duration=task.duration, sample_period=1.0 / config.sample_rate,
         learning=config.strategy == "learning", transition_speed=config.transition_speed,
-        replan_latency=replan_latency, seeds=seeds, worker_spin=config.worker_spin,
+        replan_latency=replan_latency, seeds=seeds, worker_spin=worker_spin,
     )  # fmt: skip
+
+
+def replan_settings(task: Task, config: EpisodeConfig, replan_latency: float | None) -> tuple[int, float]:
+    """The learner's seed plans per learned weight and its worker's spin [s] for an episode of `task`
+    (see :func:`make_learner`): ``config``'s; by default WALL_CLOCK_SEEDS when a learning episode
+    replans on the wall clock and every learned weight has finite bounds (fewer if that many would
+    pass MAX_SEEDS), else none. An impedance episode never replans: no seeds, no spin."""
+    if config.strategy != "learning":
+        return 0, 0.0
+    if config.seeds is not None:
+        return config.seeds, config.worker_spin
+    learned = [f for f in task.features if f.learned]
+    bounded = all(math.isfinite(f.lower) and math.isfinite(f.upper) for f in learned)
+    if replan_latency is not None or not learned or not bounded:
+        return 0, config.worker_spin
+    seeds = WALL_CLOCK_SEEDS
+    while seeds >= 2 and seeds ** len(learned) > MAX_SEEDS:
+        seeds -= 1
+    return (seeds if seeds >= 2 else 0), config.worker_spin
 
 
 def robot_controls(

@@ -94,7 +94,8 @@ pub struct LearnerParams {
     /// s evenly spaced values of every learned weight between its bounds (s^L plans for L learned
     /// weights, at most [`MAX_SEEDS`]), and each replan starts from whichever of the current plan
     /// and the seeds costs least at the new weights (the plans' costs are linear in the weights:
-    /// their terms are worked out once, so comparing them costs no evaluation). The authors' later code cached such
+    /// each plan's terms are worked out once, the seeds' at construction and a worker's results
+    /// right after they are posted, so a worker's replan compares them without an evaluation). The authors' later code cached such
     /// seeds on a weight grid against trajopt's local minima; here they also make the replan after a
     /// large update short.
     pub seeds: usize,
@@ -722,6 +723,16 @@ fn check_params(params: &LearnerParams) -> Result<()> {
         return Err(PhriError::invalid(
             "worker_spin",
             format!("must be a time >= 0 s (0: the worker sleeps at once; inf: it never sleeps), got {}", params.worker_spin),
+        ));
+    }
+    if params.worker_spin > 0.0 && !params.learning {
+        return Err(PhriError::invalid(
+            "worker_spin",
+            format!(
+                "must be 0 for a learner that does not learn (it never replans: the spin would keep a core busy for \
+                 nothing), got {}",
+                params.worker_spin
+            ),
         ));
     }
     if params.worker_spin > 0.0 && !params.replan_latency.uses_worker() {

@@ -50,9 +50,9 @@ impl PlanCost {
     }
 }
 
-/// Plan costs kept for warm starts ([`Planner::prime`]): the plan the robot tracks, the worker's
-/// candidate, and one more (the initial plan, which a reset goes back to).
-const PLAN_COSTS_KEPT: usize = 3;
+/// Recent plans' costs kept for warm starts ([`Planner::prime`]): the plan the robot tracks and
+/// the worker's candidate (the initial plan's, which a reset goes back to, is kept apart).
+const PLAN_COSTS_KEPT: usize = 2;
 
 /// Replans over [0, T] from the original start to the goal.
 pub(super) struct Planner {
@@ -72,8 +72,10 @@ pub(super) struct Planner {
     adopted: PlanLevels,
     /// The initial plan's levels, for `Learner::reset`.
     initial: PlanLevels,
-    /// The seeds' plan costs, and those of recent warm starts (newest last), with seeds only.
+    /// With seeds only: the seeds' plan costs, the initial plan's, and those of recent warm
+    /// starts (newest last).
     seed_costs: Vec<PlanCost>,
+    initial_cost: Option<PlanCost>,
     plan_costs: Vec<PlanCost>,
 }
 
@@ -98,6 +100,7 @@ impl Planner {
             initial: levels.clone(),
             levels,
             seed_costs: Vec::new(),
+            initial_cost: None,
             plan_costs: Vec::new(),
         };
         for k in 0..planner.seeds.plans.len() {
@@ -105,19 +108,19 @@ impl Planner {
             planner.seed_costs.push(cost);
         }
         if !planner.seed_costs.is_empty() {
-            let cost = PlanCost::of(&mut planner.optimizer, &mut planner.features, planner.initial.plan())?;
-            planner.keep(cost);
+            planner.initial_cost = Some(PlanCost::of(&mut planner.optimizer, &mut planner.features, planner.initial.plan())?);
         }
         Ok(planner)
     }
 
     /// Replans for `weights` into `replanned`, warm-started from `levels` or from the seed plan
     /// that costs least at `weights` if it costs less than `levels`' plan (the costs are the
-    /// plans' terms at the new weights: no evaluation).
+    /// plans' terms at the new weights; `levels`' are worked out here unless primed).
     pub(super) fn solve(&mut self, weights: &[f64]) -> Result<TrajoptInfo> {
         let mut from_seed = None;
         if !self.seed_costs.is_empty() {
-            let mut least = match self.plan_costs.iter().find(|c| c.plan == self.levels.plan()) {
+            let known = self.initial_cost.iter().chain(&self.plan_costs).find(|c| c.plan == self.levels.plan());
+            let mut least = match known {
                 Some(cost) => cost.at(weights),
                 None => {
                     let cost = PlanCost::of(&mut self.optimizer, &mut self.features, self.levels.plan())?;
@@ -141,7 +144,7 @@ impl Planner {
     /// replan from it compares it with a seed at no cost: the worker primes each result after
     /// posting it, off the control side's wait.
     pub(super) fn prime(&mut self, plan: &[f64]) -> Result<()> {
-        if self.seed_costs.is_empty() || self.plan_costs.iter().any(|c| c.plan == plan) {
+        if self.seed_costs.is_empty() || self.initial_cost.iter().chain(&self.plan_costs).any(|c| c.plan == plan) {
             return Ok(());
         }
         let cost = PlanCost::of(&mut self.optimizer, &mut self.features, plan)?;

@@ -252,11 +252,11 @@ impl Worker {
         Worker { shared, planner, candidate, candidate_generation: None, levels_generation: 0, weights: vec![0.0; k], spin }
     }
 
-    /// Waits for a request newer than `taken`: busy for up to `spin` (yielding the core now and
-    /// then to whatever else is runnable), then asleep until the control side unparks it. May
-    /// return early (a spurious wake-up, shutdown); the caller looks again.
-    fn wait(&self, taken: u64) {
-        let began = Instant::now();
+    /// Waits for a request newer than `taken`: busy until `spin` after `idle_since` (the end of
+    /// the last job, yielding the core now and then to whatever else is runnable), then asleep
+    /// until the control side unparks it. May return early (a wake-up token left by a request the
+    /// spin already saw, shutdown); the caller looks again, and spins no longer than the deadline.
+    fn wait(&self, taken: u64, idle_since: Instant) {
         let mut spins = 0u32;
         while !self.spin.is_zero() {
             if self.shared.delivered.load(Ordering::Acquire) > taken || self.shared.shutdown.load(Ordering::Acquire) {
@@ -266,7 +266,7 @@ impl Worker {
             spins += 1;
             if spins == SPINS_PER_CLOCK {
                 spins = 0;
-                if began.elapsed() >= self.spin {
+                if idle_since.elapsed() >= self.spin {
                     break;
                 }
                 std::thread::yield_now();
@@ -277,6 +277,7 @@ impl Worker {
 
     fn run(mut self) {
         let mut taken = 0;
+        let mut idle_since = Instant::now();
         while !self.shared.shutdown.load(Ordering::Acquire) {
             let job = {
                 let slot = lock(&self.shared.request);
@@ -286,10 +287,11 @@ impl Worker {
                 })
             };
             let Some((generation, base)) = job else {
-                self.wait(taken);
+                self.wait(taken, idle_since);
                 continue;
             };
             taken = generation;
+            idle_since = Instant::now();
             if self.shared.latest.load(Ordering::Acquire) != generation {
                 continue; // superseded before it started
             }
@@ -321,6 +323,7 @@ impl Worker {
                 // (A failure here fails that replan's own evaluation too, and is reported there.)
                 let _ = self.planner.prime(self.candidate.plan());
             }
+            idle_since = Instant::now();
         }
     }
 

@@ -214,7 +214,7 @@ impl TrajectoryOptimizer {
     /// weights: each feature's term at unit weight into `terms` (one per feature), and the
     /// returned penalty (clearance, collision and step penalties, which no weight scales). The
     /// objective at weights w is Σ w_k·terms[k] (over w_k ≠ 0) + the penalty: a plan's cost at
-    /// many weights for the price of one evaluation.
+    /// any weights for the price of about one evaluation of its objective.
     pub fn objective_terms(&mut self, features: &mut FeatureSet, trajectory: &[f64], terms: &mut [f64]) -> Result<f64> {
         let (n, m) = (self.dof, self.waypoints);
         if features.model().nq() != n {

@@ -661,3 +661,25 @@ def test_the_live_runner_records_a_stopped_episode_or_runs_it_again_at_the_exper
     runner.read = ended
     with pytest.raises(live.StudyPaused, match="input ended"):
         runner.episode(spec)
+
+
+def test_the_push_to_adoption_bench_runs_and_times_every_task(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """benches/push_adoption.py (make bench-push) on one sequence: every FR3 task replans after a
+    push in each of the three settings and gets a row of finite times, so the bench does not rot."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benches" / "push_adoption.py"
+    spec = importlib.util.spec_from_file_location("push_adoption", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    monkeypatch.setattr(sys, "argv", ["push_adoption.py", "--sequences", "1"])
+    bench.main()
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.strip().startswith("fr3_")]
+    assert [r[0] for r in rows] == list(bench.TASKS) * 3, out
+    for row in rows:
+        pushes, times = int(row[1]), [float(v) for v in row[2:5] + [row[5], row[7]]]
+        assert pushes >= 1 and all(math.isfinite(v) and 0 < v < 10_000 for v in times), row

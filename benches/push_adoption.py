@@ -21,7 +21,6 @@ Usage: python benches/push_adoption.py [--sequences 10] [--poll-us 50]   (or `ma
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import gc
 import math
 import time
@@ -114,7 +113,7 @@ def main() -> None:
             print(f"{label}:")
             print(f"  {'task':<12} {'pushes':>6} {'median':>8} {'p99':>8} {'max':>8}   solve median / p99")
             for name in TASKS:
-                latencies, solves = run_task(name, dataclasses.replace(config), args.sequences, poll)
+                latencies, solves = run_task(name, config, args.sequences, poll)
                 if not latencies:
                     print(f"  {name:<12} no push replanned")
                     continue

@@ -29,7 +29,13 @@ from typing import Any
 from phri.atomic import write_atomic
 from phri.config import Task
 from phri.exceptions import InvalidParameterError
-from phri.franka.episode import CONNECT_TIMEOUT, FrankaEpisode, FrankaOutcome, check_task_robot
+from phri.franka.episode import (
+    CONNECT_TIMEOUT,
+    REPLAN_LATENCY,
+    FrankaEpisode,
+    FrankaOutcome,
+    check_task_robot,
+)
 from phri.franka.move import MAX_MOVE, MOVE_SPEED
 from phri.sim.episode import STRATEGIES, WALL_CLOCK_SEEDS, EpisodeConfig, replan_settings, write_log
 
@@ -71,7 +77,7 @@ def summary_of(outcome: FrankaOutcome, task: Task, config: EpisodeConfig, host: 
     settings (seed plans per learned weight, the worker's spin [s], null for ever)."""
     result, stop = outcome.result, outcome.stop
     summary: dict[str, Any] = {"host": host, "task": task.name, "strategy": config.strategy}
-    summary["seeds"], summary["worker_spin"] = replan_settings(task, config, None)
+    summary["seeds"], summary["worker_spin"] = replan_settings(task, config, REPLAN_LATENCY)
     summary.update(result.row() if result is not None else {})
     summary["wall_peak_force"] = None if result is None else result.wall_peak_force
     summary["completed"] = outcome.error is None

@@ -373,9 +373,7 @@ def replan_settings(task: Task, config: EpisodeConfig, replan_latency: float | N
         return config.seeds, config.worker_spin
     learned = [f for f in task.features if f.learned]
     bounded = all(math.isfinite(f.lower) and math.isfinite(f.upper) for f in learned)
-    if replan_latency is not None or not learned or not bounded:
-        return 0, config.worker_spin
-    seeds = WALL_CLOCK_SEEDS
+    seeds = WALL_CLOCK_SEEDS if replan_latency is None and learned and bounded else 0
     while seeds >= 2 and seeds ** len(learned) > MAX_SEEDS:
         seeds -= 1
     return (seeds if seeds >= 2 else 0), config.worker_spin

@@ -95,9 +95,9 @@ pub struct LearnerParams {
     /// weights, at most [`MAX_SEEDS`]), and each replan starts from whichever of the current plan
     /// and the seeds costs least at the new weights (the plans' costs are linear in the weights:
     /// each plan's terms are worked out once, the seeds' at construction and a worker's results
-    /// right after they are posted, so a worker's replan compares them without an evaluation). The authors' later code cached such
-    /// seeds on a weight grid against trajopt's local minima; here they also make the replan after a
-    /// large update short.
+    /// right after they are posted, so a worker's replan compares them without an evaluation).
+    /// The authors' later code cached such seeds on a weight grid against trajopt's local minima;
+    /// here they also make the replan after a large update short.
     pub seeds: usize,
     /// Where replans run and when their plans take effect: inline (`Fixed(0.0)`, the default), on
     /// a worker thread after a simulated latency `Fixed(L)` [s] (0 < L ≤ `duration`), or on a

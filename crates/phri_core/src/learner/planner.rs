@@ -119,9 +119,8 @@ impl Planner {
     pub(super) fn solve(&mut self, weights: &[f64]) -> Result<TrajoptInfo> {
         let mut from_seed = None;
         if !self.seed_costs.is_empty() {
-            let known = self.initial_cost.iter().chain(&self.plan_costs).find(|c| c.plan == self.levels.plan());
-            let mut least = match known {
-                Some(cost) => cost.at(weights),
+            let mut least = match self.known(self.levels.plan()).map(|cost| cost.at(weights)) {
+                Some(here) => here,
                 None => {
                     let cost = PlanCost::of(&mut self.optimizer, &mut self.features, self.levels.plan())?;
                     let here = cost.at(weights);
@@ -144,12 +143,17 @@ impl Planner {
     /// replan from it compares it with a seed at no cost: the worker primes each result after
     /// posting it, off the control side's wait.
     pub(super) fn prime(&mut self, plan: &[f64]) -> Result<()> {
-        if self.seed_costs.is_empty() || self.initial_cost.iter().chain(&self.plan_costs).any(|c| c.plan == plan) {
+        if self.seed_costs.is_empty() || self.known(plan).is_some() {
             return Ok(());
         }
         let cost = PlanCost::of(&mut self.optimizer, &mut self.features, plan)?;
         self.keep(cost);
         Ok(())
+    }
+
+    /// The cost of `plan` if it is the initial plan's or a recent one's.
+    fn known(&self, plan: &[f64]) -> Option<&PlanCost> {
+        self.initial_cost.iter().chain(&self.plan_costs).find(|c| c.plan == plan)
     }
 
     /// Keeps `cost`, forgetting the oldest beyond [`PLAN_COSTS_KEPT`].

@@ -386,4 +386,23 @@ fn the_wall_pushes_a_body_away_from_the_furniture_only_within_its_reach() {
     let moved: Vec<f64> = q.iter().zip(&wall).map(|(q, w)| q + 1e-4 * w / norm).collect();
     model.forward_kinematics(&moved, &mut data).unwrap();
     assert!(checker.worst(&model, &data, &mut scratch).unwrap().distance > 0.008);
+
+    // Its damping grows with the depth (Hunt–Crossley): a body that enters the band at 0.5 m/s
+    // meets a force that starts from zero, not a step of c·0.5 = 100 N; deeper, the damping acts.
+    let g: Vec<f64> = wall.iter().map(|w| w / status.wall.force).collect(); // ∂d/∂q of the nearest pair
+    let g2: f64 = g.iter().map(|v| v * v).sum();
+    let approach: Vec<f64> = g.iter().map(|v| -0.5 * v / g2).collect(); // ḋ = −0.5 m/s
+    let damping_force = |gap: f64| {
+        let scene = at(gap);
+        let mut c = ImpedanceController::new(model.clone(), ImpedanceParams::jaco2_default()).unwrap();
+        c.set_wall(Some(VirtualWall::new(&model, &scene, WallParams::default()).unwrap())).unwrap();
+        let mut tau = vec![0.0; 7];
+        let still = c.torque(&q, &zero, &q, &zero, &mut tau).unwrap().wall.force;
+        let moving = c.torque(&q, &approach, &q, &zero, &mut tau).unwrap().wall.force;
+        moving - still
+    };
+    let edge = damping_force(reach - 1e-4);
+    assert!((0.0..2.0).contains(&edge), "at the band's edge the damping gave {edge} N");
+    let deep = damping_force(0.008);
+    assert!(deep > 20.0, "7 mm into the band the damping gave only {deep} N");
 }

@@ -3,11 +3,11 @@
 //! the person pushes (on the table task the person pushes the cup down toward the table).
 //!
 //! The closest sphere pair of each body–furniture pair within margin + band gets a normal force
-//! F = k·x + c·(x / band)·max(0, −ḋ) [N], x = margin + band − d, along the distance's gradient,
-//! applied as the torque F·∂d/∂q. The damping grows with the depth as in Hunt and Crossley's contact
-//! model (1975): the force starts from zero at the band's edge, so an arm that the person pushes
-//! into the band at speed is not struck by a step of c·|ḋ| (a kick that could spin the light wrist
-//! past its velocity limit). The person is not a wall: their hand touching the arm is the point of
+//! F = k·x + c·min(1, x / band)·max(0, −ḋ) [N], x = margin + band − d, along the distance's
+//! gradient, applied as the torque F·∂d/∂q. The damping grows with the depth across the band, as in
+//! Hunt and Crossley's contact model (1975), and is c from the margin inward: the force starts from
+//! zero at the band's edge, so an arm that the person pushes into the band at speed is not struck by
+//! a step of c·|ḋ| (a kick that could spin the light wrist past its velocity limit). The person is not a wall: their hand touching the arm is the point of
 //! the interaction, and plans keep clear of their body.
 
 use std::sync::Arc;
@@ -27,8 +27,8 @@ pub struct WallParams {
     pub band: f64,
     /// Its stiffness k [N/m] (default 8000: 80 N per body at the margin, against a firm push of 30–40 N).
     pub stiffness: f64,
-    /// Its damping c on approach at the margin [N·s/m] (default 200: about critical for a link of
-    /// 1 kg); it scales with the depth into the band (zero at its edge).
+    /// Its damping c on approach from the margin inward [N·s/m] (default 200: about critical for a
+    /// link of 1 kg); across the band it grows in proportion to the depth from zero at its edge.
     pub damping: f64,
 }
 
@@ -134,7 +134,7 @@ impl VirtualWall {
             status.distance = status.distance.min(distance);
             let rate: f64 = g.iter().zip(qd).map(|(g, v)| g * v).sum();
             let depth = reach - distance;
-            let force = p.stiffness * depth + p.damping * (depth / p.band) * (-rate).max(0.0);
+            let force = p.stiffness * depth + p.damping * (depth / p.band).min(1.0) * (-rate).max(0.0);
             status.force += force;
             for (t, g) in tau.iter_mut().zip(g) {
                 *t += force * g;

@@ -379,6 +379,7 @@ fn the_wall_pushes_a_body_away_from_the_furniture_only_within_its_reach() {
     let scene = at(0.008);
     let status = torque(&scene, &mut near);
     assert!(status.wall.force > 0.0 && (status.wall.distance - 0.008).abs() < 1e-9, "{status:?}");
+    assert_eq!(status.saturated, 0, "the torque difference below must be the wall's alone");
     // The wall's torque (beyond gravity and the spring, equal in both) moves the arm away.
     let wall: Vec<f64> = near.iter().zip(&far).map(|(a, b)| a - b).collect();
     let norm = wall.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -399,10 +400,14 @@ fn the_wall_pushes_a_body_away_from_the_furniture_only_within_its_reach() {
         let mut tau = vec![0.0; 7];
         let still = c.torque(&q, &zero, &q, &zero, &mut tau).unwrap().wall.force;
         let moving = c.torque(&q, &approach, &q, &zero, &mut tau).unwrap().wall.force;
+        assert!(still > 0.0, "nothing within reach at a gap of {gap} m");
         moving - still
     };
     let edge = damping_force(reach - 1e-4);
     assert!((0.0..2.0).contains(&edge), "at the band's edge the damping gave {edge} N");
+    // From the margin inward it stays c (bounded by the checked range), 0.5 mm past the margin too.
+    let inside = damping_force(WallParams::default().margin - 5e-4);
+    assert!(inside < 1.5 * 100.0, "past the margin the damping gave {inside} N");
     let deep = damping_force(0.008);
     assert!(deep > 20.0, "7 mm into the band the damping gave only {deep} N");
 }

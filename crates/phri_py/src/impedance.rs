@@ -154,12 +154,13 @@ fn gain_array<'py>(py: Python<'py>, g: &Gain) -> PyResult<Bound<'py, PyArrayDyn<
 /// `torque_implicit`); eq. 5 always includes it (feedback linearisation cancels all the dynamics).
 /// With a `scene`, a virtual wall (on unless `wall=False`) adds a repulsive torque that keeps every
 /// collision body at least `wall_margin` [m] from the scene's furniture, whatever the reference and
-/// the person's push: a normal force `wall_stiffness`·x plus `wall_damping`·(x / `wall_band`) times
-/// the approach speed [N, N/m, N·s/m, m], x = margin + `wall_band` − d (damping that grows with the
-/// depth, so the force starts from zero), at the closest spheres of each body–furniture pair within
-/// reach (`wall_force`, `wall_distance` tell what it did in the last step). The person is not a wall. `wall_margin` and `wall_band` lie in
-/// [0, 1] m, `wall_stiffness` in [0, 10⁶] N/m, `wall_damping` in [0, 10⁵] N·s/m (checked with or
-/// without a scene).
+/// the person's push: a normal force `wall_stiffness`·x plus `wall_damping`·min(1, x / `wall_band`)
+/// times the approach speed [N, N/m, N·s/m, m], x = `wall_margin` + `wall_band` − d (damping that
+/// grows across the band, so the force starts from zero), at the closest spheres of each
+/// body–furniture pair within reach (`wall_force`, `wall_distance` tell what it did in the last
+/// step). The person is not a wall. `wall_margin` and `wall_band` lie in [0, 1] m,
+/// `wall_stiffness` in [0, 10⁶] N/m, `wall_damping` in [0, 10⁵] N·s/m (checked with or without a
+/// scene).
 #[pyclass(name = "ImpedanceController", module = "phri._phri")]
 pub struct PyImpedanceController {
     controller: ImpedanceController,

@@ -6,7 +6,7 @@ without seed plans and with the worker spinning (``worker_spin=inf``).
 
 Each sequence pushes once a second, at t = 2, 3, ..., 11 s, the way the task wants: a joint torque
 of PUSH N·m in norm (above every FR3 detection threshold) against the gradient of the task's feature
-at the plan's waypoint nearest t (central differences), so that each push raises the task's weight,
+at the plan's waypoint nearest t (`Features.phi_gradient`), so that each push raises the task's weight,
 as a person's corrections do, until it reaches its bound. After a push that updated the weights,
 `observe` is called every --poll-us microseconds of wall time (a 1 kHz loop looks every millisecond;
 polling faster measures the replan rather than the loop's period) at the next ticks' times until a
@@ -44,13 +44,7 @@ def corrective_push(features: phri.Features, task_index: int, plan: np.ndarray, 
     """The push at `t` [s]: PUSH N·m against the gradient of the task feature Φ_task with respect to
     the plan's waypoint nearest t (None where the gradient vanishes)."""
     i = min(max(round(t / duration * (len(plan) - 1)), 1), len(plan) - 2)
-    gradient = np.zeros(plan.shape[1])
-    h = 1e-6
-    for j in range(plan.shape[1]):
-        up, down = plan.copy(), plan.copy()
-        up[i, j] += h
-        down[i, j] -= h
-        gradient[j] = (features.phi(up)[task_index] - features.phi(down)[task_index]) / (2 * h)
+    gradient = features.phi_gradient(plan)[1][task_index, i]
     norm = float(np.linalg.norm(gradient))
     return None if norm < 1e-9 else -PUSH * gradient / norm
 

@@ -7,8 +7,9 @@
 //! gradient, applied as the torque F·∂d/∂q. The damping grows with the depth across the band, as in
 //! Hunt and Crossley's contact model (1975), and is c from the margin inward: the force starts from
 //! zero at the band's edge, so an arm that the person pushes into the band at speed is not struck by
-//! a step of c·|ḋ| (a kick that could spin the light wrist past its velocity limit). The person is not a wall: their hand touching the arm is the point of
-//! the interaction, and plans keep clear of their body.
+//! a step of c·|ḋ| (a kick that could spin the light wrist past its velocity limit). The person is
+//! not a wall: their hand touching the arm is the point of the interaction, and plans keep clear of
+//! their body.
 
 use std::sync::Arc;
 

@@ -331,6 +331,19 @@ def test_study_plans_keep_every_body_clear_along_the_executed_cubic(jaco2, tasks
     )
 
 
+@pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("name", TASKS)
+def test_plans_by_knots_keep_every_body_clear_along_the_executed_cubic(jaco2, tasks, name, fraction) -> None:
+    # Piecewise linear through 4 knots (the original's planner): the penalty acts on the chords
+    # between knots, the check on the cubic through the 31 waypoints the arm executes.
+    task = tasks[name]
+    features = task.feature_set(jaco2)
+    opt = phri.TrajectoryOptimizer(features, task.waypoints, duration=task.duration, knots=4)
+    weights = task.vector("initial") + fraction * (task.vector("true") - task.vector("initial"))
+    xi, info = opt.solve(weights, task.start, task.goal)
+    check_safe_plan(jaco2, opt, task.scene, xi, info, task.duration, f"{name} by knots at {fraction}")
+
+
 def _moved(task: phri.Task, name: str, x: float, y: float) -> phri.Task:
     """`task` with scene object `name` moved to (x, y), at its height."""
     objects = []

@@ -89,6 +89,9 @@ def _variant(tmp_path, old: str, new: str):
         ),
         ("duration = 15.0", "duration = -1.0", r"key 'duration' must be a number > 0"),
         ("waypoints = 31", "waypoints = 2", r"key 'waypoints' must be an integer in 3..=10000"),
+        ("waypoints = 31", "waypoints = 31\nknots = 2", r"key 'knots' must be 0 \(plan every waypoint\) or"),
+        ("waypoints = 31", "waypoints = 31\nknots = 31", r"key 'knots' must be .* in 3..=30"),
+        ("waypoints = 31", "waypoints = 31\nknots = 4.5", r"key 'knots' must be"),
         ("[features.table]", "[features.tabel]", r"key 'features.tabel': unknown feature"),
         ("step = 2.0", "step = -2.0", r"key 'features.table.step' must be a number >= 0"),
         ("upper = 1.0", "upper = -1.0", r"key 'features.table.lower' must be <= upper"),
@@ -133,7 +136,7 @@ def _shipped_text(name: str) -> str:
             "duration = 15.0",
             "duraton = 15.0",
             "unknown key 'duraton' in the top-level table; allowed keys: name, title, angles, start, goal, "
-            "duration, waypoints, task_feature, feature_frame, features, scene, robot, safety; "
+            "duration, waypoints, knots, task_feature, feature_frame, features, scene, robot, safety; "
             "did you mean 'duration'?",
         ),
         (

@@ -142,6 +142,9 @@ def test_seeds_depend_on_what_not_when() -> None:
         ({"familiarization": "coffee", "tasks": ("human", "laptop")}, "familiarization"),
         ({"duration": 0.0}, "duration"),
         ({"waypoints": 2}, "waypoints"),
+        ({"knots": 2}, "knots"),
+        ({"knots": -1}, "knots"),
+        ({"knots": 3.5}, "knots"),
         ({"rule": "most"}, "rule"),
         ({"sample_rate": 0.0}, "sample_rate"),
         ({"sample_rate": "fast"}, "sample_rate"),
@@ -152,6 +155,17 @@ def test_bad_study_parameters_are_clear_errors(kwargs: dict, key: str) -> None:
     with pytest.raises(StudyConfigError, match=key) as info:
         StudyConfig(**kwargs)
     assert isinstance(info.value, ConfigError | InvalidParameterError)
+
+
+def test_knots_override_every_tasks_and_must_be_fewer_than_its_waypoints() -> None:
+    assert {t.knots for t in StudyConfig(knots=4).load_tasks().values()} == {4}
+    assert {t.knots for t in StudyConfig(knots=0).load_tasks().values()} == {0}
+    assert StudyConfig(knots=5).to_dict()["knots"] == 5
+    fewer = "knots must be fewer than task 'human''s {} waypoints, got {}"
+    with pytest.raises(StudyConfigError, match=fewer.format(31, 40)):
+        StudyConfig(knots=40).load_tasks()
+    with pytest.raises(StudyConfigError, match=fewer.format(11, 11)):
+        StudyConfig(knots=11, waypoints=11).load_tasks()
 
 
 def test_an_edited_study_json_beyond_the_limits_is_refused_at_once(reference: Path, tmp_path: Path) -> None:

@@ -398,3 +398,44 @@ def test_the_collision_penalty_is_in_the_objective_with_its_exact_gradient(robot
         down[i, j] -= h
         fd = (on.objective(up, w)[0] - on.objective(down, w)[0]) / (2 * h)
         assert fd == pytest.approx(grad[i, j], rel=1e-5, abs=1e-4), (i, j)
+
+
+@pytest.mark.parametrize("name", TASKS)
+def test_plans_by_knots_are_four_waypoints_planned_and_upsampled_as_the_original_did(name, robot) -> None:
+    # The original system planned 4 waypoints 5 s apart with trajopt and upsampled the plan
+    # linearly to 31; knots=4 does that in one solve. Independently: a 4-waypoint optimiser (step
+    # limit of 5 s, collision samples as dense as 31 waypoints' along each chord), its plan upsampled
+    # with numpy.
+    task = phri.load_task(name)
+    features = task.feature_set(robot)
+    by_knots = phri.TrajectoryOptimizer(features, 31, duration=task.duration, knots=4)
+    four = phri.TrajectoryOptimizer(features, 4, duration=task.duration, collision_samples=40)
+    assert by_knots.levels == [31, 4]
+    np.testing.assert_array_equal(by_knots.max_step, four.max_step / 10)
+    for which in ("initial", "true"):
+        w = task.vector(which)
+        plan, info = by_knots.solve(w, task.start, task.goal)
+        knots, info4 = four.solve(w, task.start, task.goal)
+        assert info.converged and info.feasible, (name, which, info)
+        assert (info.iterations, info.coarse_iterations) == (0, info4.iterations)
+        assert (info.cost, info.penalty) == (info4.cost, info4.penalty)
+        times = np.linspace(0, 3, 31)
+        upsampled = np.stack([np.interp(times, np.arange(4), knots[:, j]) for j in range(7)], axis=1)
+        np.testing.assert_allclose(plan, upsampled, rtol=0, atol=1e-12)
+        # What it minimises is the knot problem's cost at the plan's knots.
+        cost, penalty, grad = by_knots.objective(plan, w)
+        assert (cost, penalty) == (info.cost, info.penalty)
+        assert not grad[np.arange(31) % 10 != 0].any()
+        # A warm start from the plan stays there.
+        again, warm = by_knots.solve(w, task.start, task.goal, init=plan)
+        assert warm.converged
+        np.testing.assert_allclose(again, plan, rtol=0, atol=1e-6)
+
+
+def test_knots_outside_their_range_are_typed_errors(robot) -> None:
+    features = phri.Features(robot, ["efficiency", "table"])
+    for knots in (0, 2, 31, 40, -1):
+        with pytest.raises(ex.InvalidParameterError, match="knots"):
+            phri.TrajectoryOptimizer(features, 31, duration=15.0, knots=knots)
+    with pytest.raises(TypeError, match="knots"):
+        phri.TrajectoryOptimizer(features, 31, duration=15.0, knots=4.0)  # type: ignore[arg-type]

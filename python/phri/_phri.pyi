@@ -484,6 +484,7 @@ class TrajectoryOptimizer:
         kinematic_curvature: Literal["gauss-newton", "settled", "exact"] = "settled",
         coarsening: int = 3,
         coarsest: int = 8,
+        knots: int | None = None,
     ) -> TrajectoryOptimizer: ...
     @property
     def max_step(self) -> _F64 | None: ...

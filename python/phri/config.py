@@ -43,8 +43,8 @@ STUDY_TASKS = ("human", "coffee", "table", "laptop")
 MAX_NAME_LENGTH = 64
 NAME_PUNCTUATION = ("_", "-", ".")
 TASK_KEYS = (
-    "name", "title", "angles", "start", "goal", "duration", "waypoints", "task_feature", "feature_frame",
-    "features", "scene", "robot", "safety",
+    "name", "title", "angles", "start", "goal", "duration", "waypoints", "knots", "task_feature",
+    "feature_frame", "features", "scene", "robot", "safety",
 )  # fmt: skip
 #: Keys of a task's [safety] table: the tool's box and overrides of the robot's joint limits.
 TASK_SAFETY_KEYS = ("tool_box", *SAFETY_KEYS)
@@ -98,6 +98,10 @@ class Task:
     waypoints: int
     task_feature: str
     features: tuple[FeatureSpec, ...]
+    #: Plan by this many knots (``phri.TrajectoryOptimizer(knots=...)``: piecewise linear through
+    #: knots evenly spaced in time, as the original planned 4 and upsampled them); 0 plans every
+    #: waypoint.
+    knots: int = 0
     scene: Scene = field(default_factory=Scene)
     source: str = "<memory>"
     #: The frame the features read (None: the robot's feature frame).
@@ -307,6 +311,10 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     _check_limits(r, "start", start, scale, angles)
     _check_limits(r, "goal", goal, scale, angles)
     waypoints = _integer(r, "waypoints", 3, 31, maximum=TrajectoryOptimizer.MAX_WAYPOINTS)
+    knots = r.get("knots", 0)
+    if not (is_integer(knots) and (knots == 0 or 3 <= knots < waypoints)):
+        expected = f"0 (plan every waypoint) or an integer in 3..={waypoints - 1} (fewer than the waypoints)"
+        raise r.fail("knots", expected, knots)
     scene = _scene(r)
     feats = r.get("features")
     if not isinstance(feats, dict) or not feats:
@@ -332,6 +340,7 @@ def _parse(data: dict[str, Any], source: str) -> Task:
         goal=goal,
         duration=r.number("duration", 15.0, positive=True),
         waypoints=waypoints,
+        knots=int(knots),
         task_feature=task_feature,
         features=specs,
         scene=scene,

@@ -316,3 +316,77 @@ fn only_the_same_problem_resumes_and_a_cold_solve_reports_its_own_convergence() 
     assert!(info.converged && info.iterations <= 5, "{info:?}");
     assert!((info.cost - full.cost).abs() <= 1e-8 * full.cost, "{info:?} vs {full:?}");
 }
+
+/// The study's planner by knots ([`TrajoptParams::knots`]), and the knot problem on its own: an
+/// optimiser of `knots` waypoints with the step limit of the knot intervals.
+fn knots_setup(feature: &str, knots: usize) -> (FeatureSet, TrajectoryOptimizer, TrajectoryOptimizer) {
+    let (fs, opt) = study_setup(feature, 31);
+    let by_knots = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { knots, ..opt.params().clone() }).unwrap();
+    let ratio = 30.0 / (knots - 1) as f64;
+    let max_step = opt.params().max_step.iter().map(|v| v * ratio).collect();
+    let direct = TrajectoryOptimizer::new(&fs, knots, TrajoptParams { max_step, ..opt.params().clone() }).unwrap();
+    (fs, by_knots, direct)
+}
+
+#[test]
+fn plans_by_knots_are_the_knot_problems_optimum_sampled_at_the_waypoints() {
+    // The original planner: trajopt on 4 waypoints 5 s apart, upsampled linearly to 31.
+    for (feature, start, goal, weight) in tasks() {
+        let (start, goal) = (deg(start), deg(goal));
+        let (mut fs, mut opt, mut direct) = knots_setup(feature, 4);
+        let levels = opt.plan_levels();
+        assert_eq!((levels.len(), levels.level(1).len()), (2, 4 * 7), "{feature}: the waypoints, then the knots");
+        let w = [1.0, weight];
+        let (mut plan, mut knots) = (vec![0.0; 31 * 7], vec![0.0; 4 * 7]);
+        let info = opt.solve(&mut fs, &w, &start, &goal, None, &mut plan).unwrap();
+        let alone = direct.solve(&mut fs, &w, &start, &goal, None, &mut knots).unwrap();
+        assert!(info.converged && info.feasible, "{feature}: {info:?}");
+        assert_eq!((info.iterations, info.coarse_iterations), (0, alone.iterations), "{feature}: only the knots are solved");
+        assert_eq!((info.cost, info.penalty), (alone.cost, alone.penalty), "{feature}");
+        // Piecewise linear through the knot problem's plan, knots at waypoints 0, 10, 20, 30.
+        for i in 0..31 {
+            let (k, s) = ((i / 10).min(2), (i as f64 - 10.0 * (i / 10).min(2) as f64) / 10.0);
+            for j in 0..7 {
+                let want = (1.0 - s) * knots[k * 7 + j] + s * knots[(k + 1) * 7 + j];
+                assert!((plan[i * 7 + j] - want).abs() < 1e-12, "{feature}: waypoint {i} joint {j}");
+            }
+        }
+        // What the solver minimises is the knot problem's cost at the plan's knots.
+        let mut grad = vec![0.0; 31 * 7];
+        let (cost, penalty) = opt.objective(&mut fs, &w, &plan, &mut grad).unwrap();
+        assert_eq!((cost, penalty), (info.cost, info.penalty), "{feature}");
+        assert!(grad.iter().enumerate().all(|(k, g)| (k / 7) % 10 == 0 || *g == 0.0), "{feature}: only the knots count");
+        let mut terms = [0.0; 2];
+        let pen = opt.objective_terms(&mut fs, &plan, &mut terms).unwrap();
+        assert!((terms[0] * w[0] + terms[1] * w[1] + pen - cost).abs() < 1e-9 * cost.abs().max(1.0), "{feature}");
+        // The task feature (at the waypoints, as the learner and the study count it) goes down,
+        // and a warm start from the plan stays there.
+        let mut line = vec![0.0; 31 * 7];
+        opt.solve(&mut fs, &[1.0, 0.0], &start, &goal, None, &mut line).unwrap();
+        let (mut phi0, mut phi) = ([0.0; 2], [0.0; 2]);
+        fs.phi(&line, &mut phi0).unwrap();
+        fs.phi(&plan, &mut phi).unwrap();
+        assert!(phi[1] < phi0[1] - 1e-3, "{feature}: {} !< {}", phi[1], phi0[1]);
+        let mut again = vec![0.0; 31 * 7];
+        let warm = opt.solve(&mut fs, &w, &start, &goal, Some(&plan), &mut again).unwrap();
+        assert!(warm.converged && warm.coarse_iterations <= 2, "{feature}: {warm:?}");
+        assert!(again.iter().zip(&plan).all(|(a, b)| (a - b).abs() < 1e-6), "{feature}: the warm start moved");
+        // Replans through the levels are deterministic.
+        let mut base = opt.plan_levels();
+        opt.solve_levels(&mut fs, &[1.0, 0.0], &start, &goal, None, &mut base).unwrap();
+        let (mut a, mut b) = (opt.plan_levels(), opt.plan_levels());
+        let ia = opt.solve_levels(&mut fs, &w, &start, &goal, Some(&base), &mut a).unwrap();
+        opt.solve_levels(&mut fs, &w, &start, &goal, Some(&base), &mut b).unwrap();
+        assert!(ia.converged, "{feature}: {ia:?}");
+        assert_eq!(a, b, "{feature}: same inputs, same plan levels");
+    }
+}
+
+#[test]
+fn knots_outside_their_range_are_typed_errors() {
+    let (fs, opt) = study_setup("table", 31);
+    for knots in [1, 2, 31, 40] {
+        let err = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { knots, ..opt.params().clone() }).err().unwrap();
+        assert!(matches!(err, PhriError::InvalidParameter { ref arg, .. } if arg == "knots"), "{knots}: {err}");
+    }
+}

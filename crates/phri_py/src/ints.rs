@@ -25,6 +25,15 @@ pub fn int(ob: &Bound<'_, PyAny>) -> PyResult<i128> {
     }
 }
 
+/// `from_py_with` of an optional integer argument: None, or [`int`] of it.
+pub fn optional_int(ob: &Bound<'_, PyAny>) -> PyResult<Option<i128>> {
+    if ob.is_none() {
+        Ok(None)
+    } else {
+        int(ob).map(Some)
+    }
+}
+
 /// `value` as shown in a message (a saturated value by its bound).
 fn shown(value: i128) -> String {
     match value {

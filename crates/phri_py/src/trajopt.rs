@@ -20,7 +20,7 @@ use pyo3::prelude::*;
 use crate::arrays::{matrix, vector, ArrayIn};
 use crate::errors::{error, to_py, IntoPy, Kind};
 use crate::features::PyFeatures;
-use crate::ints::{bounded, int};
+use crate::ints::{bounded, int, optional_int};
 
 /// What a solve did (the core's `TrajoptInfo`, read-only).
 #[pyclass(name = "TrajoptInfo", module = "phri._phri", frozen)]
@@ -151,7 +151,11 @@ impl PyTrajoptInfo {
 /// active set settles and includes them from then on. `coarsening` (default 3; 0 or 1 for none)
 /// solves first on coarser copies of the problem with about 1/`coarsening` of the segments each,
 /// down to `coarsest` waypoints (multiresolution: a cold plan starts from the coarse plan; see
-/// `phri_core::trajopt`).
+/// `phri_core::trajopt`). `knots` = K (3 ≤ K < waypoints) plans as the original system did: every
+/// plan is piecewise linear in joint space through K knots evenly spaced in time, found by
+/// optimising the features and penalties at the knots (trajopt on 4 waypoints, upsampled to 31),
+/// and checked for feasibility as sampled at the waypoints; None (the default) optimises every
+/// waypoint.
 #[pyclass(name = "TrajectoryOptimizer", module = "phri._phri")]
 pub struct PyTrajectoryOptimizer {
     pub(crate) optimizer: TrajectoryOptimizer,
@@ -251,7 +255,8 @@ impl PyTrajectoryOptimizer {
         collisions = true, self_collision = true, collision_weight = 1e4,
         collision_buffer = 0.006, collision_samples = 4, clearance = None, clearance_weight = 1e3, max_iterations = 500,
         max_time = None, gradient_tolerance = 1e-6, relative_tolerance = 1e-9, smoothing = 0.05,
-        max_step = None, step_weight = 1e3, kinematic_curvature = "settled", coarsening = 3, coarsest = 8
+        max_step = None, step_weight = 1e3, kinematic_curvature = "settled", coarsening = 3, coarsest = 8,
+        knots = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -277,11 +282,16 @@ impl PyTrajectoryOptimizer {
         kinematic_curvature: &str,
         #[pyo3(from_py_with = int)] coarsening: i128,
         #[pyo3(from_py_with = int)] coarsest: i128,
+        #[pyo3(from_py_with = optional_int)] knots: Option<i128>,
     ) -> PyResult<Self> {
         let waypoints = bounded("waypoints", waypoints, 3..=MAX_WAYPOINTS, "(start, at least one free waypoint, goal)")?;
         let max_iterations = bounded("max_iterations", max_iterations, 1..=MAX_ITERATIONS, "Newton iterations")?;
         let coarsening = bounded("coarsening", coarsening, 0..=MAX_WAYPOINTS, "(segments per coarse segment; 0 or 1 for none)")?;
         let coarsest = bounded("coarsest", coarsest, 3..=MAX_WAYPOINTS, "waypoints")?;
+        let knots = match knots {
+            None => 0,
+            Some(k) => bounded("knots", k, 3..=waypoints - 1, "(start, a free knot, goal; fewer than the waypoints)")?,
+        };
         let collision_samples = bounded("collision_samples", collision_samples, 1..=MAX_COLLISION_SAMPLES, "points per segment")?;
         let set = features.set.clone();
         let model = set.model().clone();
@@ -322,6 +332,7 @@ impl PyTrajectoryOptimizer {
             kinematic_curvature,
             coarsening,
             coarsest,
+            knots,
         };
         let optimizer = TrajectoryOptimizer::new(&set, waypoints, params).py_err()?;
         Ok(PyTrajectoryOptimizer { optimizer, features: set })

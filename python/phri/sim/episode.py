@@ -266,7 +266,11 @@ class Planner:
         model.check_limits(task.start)
         model.check_limits(task.goal)
         self.optimizer = TrajectoryOptimizer(
-            self.features, task.waypoints, duration=task.duration, speed_fraction=VELOCITY_MARGIN
+            self.features,
+            task.waypoints,
+            duration=task.duration,
+            speed_fraction=VELOCITY_MARGIN,
+            knots=task.knots or None,
         )
         self.desired, info = self.optimizer.solve(task.vector("true"), task.start, task.goal)
         self.check(info, "true")

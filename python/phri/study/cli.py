@@ -26,7 +26,7 @@ __all__ = ["main", "register"]
 logger = logging.getLogger(__name__)
 
 _STUDY_KEYS = (
-    "participants", "attempts", "seed", "tasks", "familiarization", "duration", "waypoints",
+    "participants", "attempts", "seed", "tasks", "familiarization", "duration", "waypoints", "knots",
     "sample_rate", "sensor_noise", "rule", "population",
 )  # fmt: skip
 
@@ -66,6 +66,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     g.add_argument("--duration", type=float, help="override every task's duration [s] (the study's: 15)")
     g.add_argument("--waypoints", type=int, help="override every task's number of plan waypoints")
+    g.add_argument(
+        "--knots",
+        type=int,
+        help="override every task's plan knots: plans piecewise linear through this many knots, as the "
+        "original planned 4; 0 plans every waypoint",
+    )
     g.add_argument("--sample-rate", type=float, help="torque sampling rate [Hz] (default 10)")
     g.add_argument("--sensor-noise", type=float, help="torque sensor noise [N·m] (default 0.1)")
     g.add_argument("--rule", choices=UPDATE_RULES, help="weight-update rule (default all)")

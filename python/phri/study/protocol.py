@@ -80,6 +80,9 @@ class StudyConfig:
     duration: float | None = None
     #: Override of every task's number of plan waypoints (None: the task file's).
     waypoints: int | None = None
+    #: Override of every task's plan knots (Task.knots; 0 plans every waypoint; None: the task
+    #: file's).
+    knots: int | None = None
     #: Rate at which the robot samples the person's torque [Hz] (EpisodeConfig.sample_rate).
     sample_rate: float = 10.0
     #: Gaussian noise on the joint-torque measurement [N·m] (EpisodeConfig.sensor_noise).
@@ -139,13 +142,16 @@ class StudyConfig:
             object.__setattr__(self, "duration", float(self.duration))
         if self.waypoints is not None and (not integer(self.waypoints) or self.waypoints < 3):
             raise fail("waypoints", "an integer >= 3 or none", self.waypoints)
+        if self.knots is not None and (not integer(self.knots) or self.knots in (1, 2) or self.knots < 0):
+            raise fail("knots", "0 (plan every waypoint), an integer >= 3 or none", self.knots)
         for key in ("sample_rate", "sensor_noise"):
             v = getattr(self, key)
             if not finite(v):
                 raise fail(key, "a finite number", v)
             object.__setattr__(self, key, float(v))
-        if self.waypoints is not None:
-            object.__setattr__(self, "waypoints", int(self.waypoints))
+        for key in ("waypoints", "knots"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, int(getattr(self, key)))
         try:
             EpisodeConfig(sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule)
         except ValueError as e:
@@ -162,7 +168,7 @@ class StudyConfig:
         )
 
     def load_tasks(self) -> dict[str, Task]:
-        """The study's tasks by name, with the duration/waypoints overrides applied."""
+        """The study's tasks by name, with the duration/waypoints/knots overrides applied."""
         tasks: dict[str, Task] = {}
         for spec in self.tasks:
             try:
@@ -173,6 +179,13 @@ class StudyConfig:
                 task = dataclasses.replace(task, duration=self.duration)
             if self.waypoints is not None:
                 task = dataclasses.replace(task, waypoints=self.waypoints)
+            if self.knots is not None:
+                task = dataclasses.replace(task, knots=self.knots)
+            if task.knots and task.knots >= task.waypoints:
+                raise StudyConfigError(
+                    f"study: knots must be fewer than task {task.name!r}'s {task.waypoints} waypoints, "
+                    f"got {task.knots}"
+                )
             if task.name in tasks:
                 raise StudyConfigError(f"study: two tasks are named {task.name!r}; task names must be unique")
             tasks[task.name] = task

@@ -399,6 +399,8 @@ def _introduction(
         f"{config.attempts} attempt(s) each, seed {config.seed}"
         + (f", duration overridden to {config.duration:g} s" if config.duration else "")
         + (f", {config.waypoints} plan waypoints" if config.waypoints else "")
+        + (f", plans by {config.knots} knots" if config.knots else "")
+        + (", plans on every waypoint" if config.knots == 0 else "")
         + "."
         + (
             f" **Mixed versions**: started with phri {manifest.get('phri_version')}, resumed with phri "

@@ -21,7 +21,7 @@
 use std::time::Instant;
 
 use super::newton::SolverState;
-use super::{pin_ends_within_limits, TrajectoryOptimizer, TrajoptParams};
+use super::{pin_ends_within_limits, TrajectoryOptimizer, TrajoptParams, MAX_COLLISION_SAMPLES};
 use crate::error::{PhriError, Result};
 use crate::features::FeatureSet;
 
@@ -125,6 +125,30 @@ impl TrajectoryOptimizer {
         self.coarse = Some(coarse);
         (iterations + coarse_iterations, converged)
     }
+
+    /// Plan by knots ([`TrajoptParams::knots`]): the knot level solved as `start` says, `traj` set
+    /// to its interpolation. Returns (the knot level's iterations, its cost and penalty, whether
+    /// it converged).
+    pub(super) fn solve_by_knots(
+        &mut self,
+        features: &mut FeatureSet,
+        weights: &[f64],
+        deadline: Option<Instant>,
+        start: Start<'_>,
+        levels: Option<LevelsOut<'_>>,
+    ) -> (usize, f64, f64, bool) {
+        let mut coarse = self.coarse.take().expect("a plan by knots has its knot level");
+        let mut traj = std::mem::take(&mut self.traj);
+        let result = coarse.solve_knots(features, weights, &mut traj, deadline, start, levels);
+        self.traj = traj;
+        self.coarse = Some(coarse);
+        result
+    }
+
+    /// Whether plans are piecewise linear through knots ([`TrajoptParams::knots`]).
+    pub(super) fn by_knots(&self) -> bool {
+        self.coarse.as_ref().is_some_and(|c| c.knots)
+    }
 }
 
 /// Relative tolerance of the coarse levels at least: they only give the next level its start.
@@ -142,12 +166,19 @@ pub(super) struct Coarse {
     up: Vec<[(usize, f64); 2]>,
     /// The coarse plan a warm start began from (coarse N × n).
     start: Vec<f64>,
+    /// This level holds the knots of a plan by knots ([`TrajoptParams::knots`]): the fine plan is
+    /// its interpolation, and `down` samples a fine plan at the knots' times.
+    pub(super) knots: bool,
+    down: Vec<[(usize, f64); 2]>,
 }
 
 impl Coarse {
     /// The coarse level below a problem of `waypoints`, if `params` asks for one that has at least
     /// `params.coarsest` waypoints and fewer than `waypoints`.
     pub(super) fn build(features: &FeatureSet, waypoints: usize, params: &TrajoptParams) -> Result<Option<Box<Coarse>>> {
+        if params.knots != 0 {
+            return Self::knot_level(features, waypoints, params).map(Some);
+        }
         if params.coarsening < 2 {
             return Ok(None);
         }
@@ -182,7 +213,69 @@ impl Coarse {
             weights: vec![0.0; features.len()],
             up: interpolation_taps(coarse_segments, segments),
             start: vec![0.0; m * n],
+            knots: false,
+            down: Vec::new(),
         })))
+    }
+
+    /// The knot problem of a plan by knots ([`TrajoptParams::knots`]) on `waypoints`: the same
+    /// features and weights at the knots (as the original planner weighed its 4 waypoints), the
+    /// penalties' weights as given, the step limit per knot interval, and the collision penalty at
+    /// as many points of each chord as the waypoints' samples would put there (at most
+    /// `MAX_COLLISION_SAMPLES`).
+    fn knot_level(features: &FeatureSet, waypoints: usize, params: &TrajoptParams) -> Result<Box<Coarse>> {
+        let knots = params.knots;
+        if knots >= waypoints {
+            return Err(PhriError::invalid(
+                "knots",
+                format!("must be fewer than the waypoints ({waypoints}) they are sampled at, got {knots}"),
+            ));
+        }
+        let (segments, intervals) = (waypoints - 1, knots - 1);
+        let ratio = segments as f64 / intervals as f64;
+        let mut knot_params = params.clone();
+        knot_params.knots = 0;
+        for v in &mut knot_params.max_step {
+            *v *= ratio;
+        }
+        if let Some(c) = knot_params.collision.as_mut() {
+            c.samples = ((c.samples as f64 * ratio).ceil() as usize).min(MAX_COLLISION_SAMPLES);
+        }
+        let optimizer = TrajectoryOptimizer::new(features, knots, knot_params)?;
+        let n = features.model().nq();
+        Ok(Box::new(Coarse {
+            optimizer,
+            weight_scale: vec![1.0; features.len()],
+            weights: vec![0.0; features.len()],
+            up: interpolation_taps(intervals, segments),
+            start: vec![0.0; knots * n],
+            knots: true,
+            down: interpolation_taps(segments, intervals),
+        }))
+    }
+
+    /// The knots of the fine plan `traj` (its linear interpolation at the knots' times) into `out`.
+    pub(super) fn sample(&self, traj: &[f64], out: &mut [f64]) {
+        let n = self.optimizer.dof;
+        for (k, taps) in self.down.iter().enumerate() {
+            for j in 0..n {
+                out[k * n + j] = taps.iter().map(|&(i, w)| w * traj[i * n + j]).sum::<f64>();
+            }
+        }
+    }
+
+    /// The gradient `grad` (fine N × n) of a cost of the knots whose gradient is `knot_grad`,
+    /// the knots being [`Coarse::sample`] of the fine plan.
+    pub(super) fn spread(&self, knot_grad: &[f64], grad: &mut [f64]) {
+        let n = self.optimizer.dof;
+        grad.fill(0.0);
+        for (k, taps) in self.down.iter().enumerate() {
+            for &(i, w) in taps {
+                for j in 0..n {
+                    grad[i * n + j] += w * knot_grad[k * n + j];
+                }
+            }
+        }
     }
 
     /// Sets the coarse plan to start from, with the fine plan's ends `first` and `last`: the
@@ -229,6 +322,39 @@ impl Coarse {
             }
             None => co.solve_prepared(features, &self.weights, deadline, start, None),
         }
+    }
+
+    /// Plan by knots: solves the knot problem — from the knots of `traj` (`Start::Plan`), from the
+    /// knot plan that goes with it (`Start::Levels`), or from the straight line — and sets `traj`
+    /// (N × n) to the knots' interpolation. Returns the knot level's iterations and whether it
+    /// converged.
+    fn solve_knots(
+        &mut self,
+        features: &mut FeatureSet,
+        weights: &[f64],
+        traj: &mut [f64],
+        deadline: Option<Instant>,
+        start: Start<'_>,
+        levels: Option<LevelsOut<'_>>,
+    ) -> (usize, f64, f64, bool) {
+        let n = self.optimizer.dof;
+        let m = traj.len() / n;
+        self.weights.copy_from_slice(weights);
+        let below = match start {
+            Start::Plan => {
+                let mut knots = std::mem::take(&mut self.optimizer.traj);
+                self.sample(traj, &mut knots);
+                let co = &mut self.optimizer;
+                co.traj = knots;
+                co.resume = None;
+                pin_ends_within_limits(&mut co.traj, &traj[..n], &traj[(m - 1) * n..], &co.lower, &co.upper);
+                Start::Plan
+            }
+            other => self.prepare(&traj[..n], &traj[(m - 1) * n..], other),
+        };
+        let (iterations, coarse_iterations, _, cost, penalty, converged) = self.solve(features, deadline, below, levels);
+        self.hand_down(traj, false);
+        (iterations + coarse_iterations, cost, penalty, converged && self.optimizer.coarse_converged)
     }
 
     /// Hands the coarse plan down to the fine plan `traj` (N × n, ends kept): its interpolation,

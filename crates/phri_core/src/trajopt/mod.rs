@@ -20,6 +20,8 @@
 //! - Multiresolution ([`levels`]): a cold solve starts on a coarser copy of the problem and
 //!   finishes on the given waypoints; [`TrajectoryOptimizer::solve_levels`] warm-starts through
 //!   the coarse levels too.
+//! - Plans by knots ([`TrajoptParams::knots`], the original system's planner): the knot problem is
+//!   the only level solved, and the plan is its linear interpolation at the waypoints.
 //!
 //! The hinge features (laptop, human, |·| of coffee) are used with their subgradients (zero on the
 //! flat side and at the kink), Huber-smoothed with width `smoothing` during the optimisation so
@@ -184,7 +186,8 @@ impl TrajectoryOptimizer {
     }
 
     /// The cost the solver minimises — w·Φ(ξ) with the kinked features smoothed by `smoothing`,
-    /// plus the clearance and max_step penalties — at `trajectory` (N × n), and its gradient into
+    /// plus the clearance and max_step penalties; for a plan by knots, that of the knot problem at
+    /// the trajectory's knots — at `trajectory` (N × n), and its gradient into
     /// `grad` (N × n; the rows of the fixed start and goal included). Returns (cost, penalty).
     pub fn objective(
         &mut self,
@@ -204,6 +207,15 @@ impl TrajectoryOptimizer {
             }
         }
         check_finite("trajectory", trajectory)?;
+        if let Some(c) = self.coarse.as_mut().filter(|c| c.knots) {
+            // A plan by knots minimises the knot problem's cost at the trajectory's knots.
+            let mut knots = vec![0.0; c.optimizer.waypoints * n];
+            let mut knot_grad = knots.clone();
+            c.sample(trajectory, &mut knots);
+            let result = c.optimizer.objective(features, weights, &knots, &mut knot_grad)?;
+            c.spread(&knot_grad, grad);
+            return Ok(result);
+        }
         self.trial.copy_from_slice(trajectory);
         let result = self.evaluate(features, weights, Buffer::Trial, Derivatives::Gradient);
         grad.copy_from_slice(&self.trial_grad);
@@ -227,6 +239,11 @@ impl TrajectoryOptimizer {
             return Err(PhriError::shape("terms", format!("({},)", features.len()), format!("{} values", terms.len())));
         }
         check_finite("trajectory", trajectory)?;
+        if let Some(c) = self.coarse.as_mut().filter(|c| c.knots) {
+            let mut knots = vec![0.0; c.optimizer.waypoints * n];
+            c.sample(trajectory, &mut knots);
+            return c.optimizer.objective_terms(features, &knots, terms);
+        }
         self.trial.copy_from_slice(trajectory);
         features.cost_terms_unchecked(&self.trial, m, self.params.smoothing, terms);
         // With every weight 0 the evaluation is the penalties alone.
@@ -404,6 +421,12 @@ impl TrajectoryOptimizer {
         start: Start<'_>,
         levels: Option<LevelsOut<'_>>,
     ) -> (usize, usize, usize, f64, f64, bool) {
+        if self.by_knots() {
+            // The plan is the knots' interpolation: nothing is left to optimise on the waypoints.
+            let (knot_iterations, cost, penalty, converged) = self.solve_by_knots(features, weights, deadline, start, levels);
+            self.coarse_converged = converged;
+            return (0, knot_iterations, 0, cost, penalty, converged);
+        }
         let (coarse_iterations, coarse_converged) = match start {
             Start::Plan => (0, true),
             _ => self.coarse_correction(features, weights, deadline, start, levels),

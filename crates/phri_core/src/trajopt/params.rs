@@ -169,6 +169,14 @@ pub struct TrajoptParams {
     pub coarsening: usize,
     /// Fewest waypoints of a coarse level (default 8): a level that would have fewer is not built.
     pub coarsest: usize,
+    /// Plan by knots: 0 (the default) optimises every waypoint; K ≥ 3 makes every plan piecewise
+    /// linear in joint space through K knots evenly spaced in time (the start and the goal among
+    /// them), found by optimising the problem on the knots (the features and penalties at the
+    /// knots, the collision penalty along the chords between them, the step limit per knot
+    /// interval) and sampled at the waypoints. This is the original system's planner, which ran
+    /// trajopt on 4 waypoints and upsampled its plan linearly to 31 (`coarsening` then applies
+    /// to the knot problem). Feasibility is checked on the sampled plan, as the arm executes it.
+    pub knots: usize,
 }
 
 impl Default for TrajoptParams {
@@ -186,6 +194,7 @@ impl Default for TrajoptParams {
             kinematic_curvature: KinematicCurvature::Settled,
             coarsening: 3,
             coarsest: 8,
+            knots: 0,
         }
     }
 }
@@ -231,6 +240,15 @@ impl TrajoptParams {
             return Err(PhriError::invalid(
                 "coarsening",
                 format!("must be in 0..={MAX_WAYPOINTS} (segments per coarse segment; 0 or 1 for none), got {}", self.coarsening),
+            ));
+        }
+        if self.knots != 0 && !(3..=MAX_WAYPOINTS).contains(&self.knots) {
+            return Err(PhriError::invalid(
+                "knots",
+                format!(
+                    "must be 0 (plan every waypoint) or in 3..={MAX_WAYPOINTS} (start, a free knot, goal), got {}",
+                    self.knots
+                ),
             ));
         }
         if !self.max_step.is_empty() {

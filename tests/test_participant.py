@@ -234,6 +234,30 @@ def test_the_person_pushes_down_on_a_cup_held_too_high_and_holds_between_looks(d
     assert held is not None and held[0] is force and held[1] is torque
 
 
+def test_a_hand_on_a_steadily_moving_cup_does_not_drag_on_it_but_trails_a_change_of_course(desired) -> None:
+    # The hand aims where the person expects the cup: where they saw it `delay` ago, carried on at
+    # the velocity they saw. A spring aimed where they saw it would pull back on a cup carried on at
+    # 5 cm/s by stiffness × speed × delay = 150 × 0.05 × 0.2 = 1.5 N.
+    task = phri.load_task("table")
+    params = ParticipantParams(
+        delay=0.2, noise=0.0, off_axis=0.0, rise_time=0.0, max_force=100.0, rate=100.0,
+        bout=100.0, hold=100.0, patience=100.0,
+    )  # fmt: skip
+    person = Participant(params, task, JACO2, desired["table"], np.random.default_rng(0))
+    high = moved(JACO2, desired["table"][8], np.array([0.0, 0.0, 0.1, 0.0, 0.0, 0.0]))
+    along = []  # the push's force along the cup's motion (x) [N], every 10 ms
+    for k in range(100):  # carried on at 5 cm/s for 0.6 s, then still
+        t = 0.01 * k
+        q = moved(JACO2, high, np.array([0.05 * min(t, 0.6), 0.0, 0.0, 0.0, 0.0, 0.0]))
+        push = person.wrench(t, q)
+        assert push is not None and push[0][2] < 0.0  # pushing the cup down all along
+        along.append(push[0][0])
+    assert max(abs(f) for f in along[30:61]) < 0.3, along[30:61]
+    # Once it stops, the hand carries on for about the delay (and the arm's give resists the stop).
+    assert max(along[61:85]) > 1.0, along[61:85]
+    assert max(abs(f) for f in along[90:]) < 0.3, along[90:]
+
+
 def test_two_features_are_corrected_at_once(desired) -> None:
     """Issue 15: with table and coffee both learned, the person pushes down and rights the cup."""
     table, coffee = phri.load_task("table"), phri.load_task("coffee")

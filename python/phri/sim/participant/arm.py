@@ -68,8 +68,8 @@ class HumanArm:
         self, move: np.ndarray | None, lag: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """The push for the wished `move` of the cup (translation [m], rotation [rad]; None: hands
-        off). `lag` is how far the cup has moved away from where the person last saw it (the hand
-        follows what the eyes saw: phri.sim.participant.model), a pull their arm's spring adds.
+        off). `lag` is how far the cup is from where the person expects it (the hand follows what
+        the eyes saw, carried on: phri.sim.participant.model), a pull their arm's spring adds.
 
         Tremor is drawn at every update, pushing or not, so the person's random stream does not
         depend on when they push."""

@@ -7,9 +7,15 @@ person's push at the robot's hand frame (force [N], torque [N·m], world frame) 
 and `t` (no simulator), so the same person drives PyBullet's JACO2 and franky-sim's FR3.
 
 The person acts on what they saw ``delay`` seconds ago (visuomotor delay): they grab, let go and aim
-their hand by that view. Their hand goes where they saw the cup plus the move that would have fixed
-it then; so while the robot carries the cup on, their arm's spring also pulls it back towards where
-they saw it (a hand on a moving robot drags on it), and every push starts late.
+their hand by that view. Their hand goes where they expect the cup to be now plus the move that would
+have fixed what they saw. They expect it where they saw it, carried on at the velocity they saw it
+move with (people tracking a predictable motion compensate for their delay, Miall & Wolpert's forward
+models; a hand does not trail a steadily moving cup by the delay): so a hand on a robot that moves on
+steadily does not drag on it, but one on a robot that changes course (a new plan, a spring-back)
+does, for about the delay, and every push starts late. Their arm also resists the cup moving
+otherwise than they expect, at once (the arm's own give, not a decision): a damping of stiffness ×
+delay on the difference between the velocity they saw and the one their hand feels now (between
+their last two looks), which keeps their delayed corrections from rocking a compliant arm.
 """
 
 from __future__ import annotations
@@ -48,6 +54,23 @@ def _rotation_between(seen: np.ndarray, now: np.ndarray) -> np.ndarray:
     c = (float(np.trace(a)) - 1.0) / 2.0
     angle = math.atan2(s, c)
     return vee * (angle / s) if s > 1e-12 else vee
+
+
+def _velocity(before: Sight, after: Sight) -> np.ndarray:
+    """The cup's velocity between two looks: linear [m/s] and angular [rad/s] (world frame)."""
+    dt = after.t - before.t
+    turn = _rotation_between(after.pose[:3, :3], before.pose[:3, :3])
+    return np.concatenate([(after.pose[:3, 3] - before.pose[:3, 3]) / dt, turn / dt])
+
+
+def _rotation(vector: np.ndarray) -> np.ndarray:
+    """The rotation matrix of rotation vector `vector` [rad] (Rodrigues' formula)."""
+    angle = float(np.linalg.norm(vector))
+    if angle < 1e-12:
+        return np.eye(3)
+    x, y, z = vector / angle
+    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
 
 
 class Participant:
@@ -125,7 +148,25 @@ class Participant:
         for e, c in zip(errors, seen.corrections, strict=True):
             if e >= self.params.release and c.fixable:
                 move += c.move
-        lag = np.concatenate(
-            [seen.pose[:3, 3] - now[:3, 3], _rotation_between(seen.pose[:3, :3], now[:3, :3])]
-        )
+        expected = self.expected(t)
+        lag = np.concatenate([expected[:3, 3] - now[:3, 3], _rotation_between(expected[:3, :3], now[:3, :3])])
+        if len(self.sights) >= 2:
+            # The arm's damping, in the spring's units: stiffness × delay × velocity difference.
+            felt = _velocity(self.sights[-2], self.sights[-1])
+            lag += self.params.delay * (_velocity(self.sights[0], self.sights[1]) - felt)
         return self.arm.push(move, lag)
+
+    def expected(self, t: float) -> np.ndarray:
+        """Where the person expects the cup to be at `t` [s] (4×4, world frame): where they saw it
+        ``delay`` ago, carried on at the velocity they saw then (between that look and the next) for
+        the time since; where they saw it if they have looked once only."""
+        seen = self.sights[0]
+        if len(self.sights) < 2:
+            return seen.pose
+        after = self.sights[1]
+        ahead = (t - seen.t) / (after.t - seen.t)
+        expected = seen.pose.copy()
+        expected[:3, 3] += ahead * (after.pose[:3, 3] - seen.pose[:3, 3])
+        turn = ahead * _rotation_between(after.pose[:3, :3], seen.pose[:3, :3])
+        expected[:3, :3] = _rotation(turn) @ seen.pose[:3, :3]
+        return expected

@@ -375,12 +375,12 @@ def test_torques_beyond_the_limits_are_clipped_and_counted() -> None:
 
 def test_the_commands_rate_is_limited_and_counted() -> None:
     class Step(StillLearner):
-        """The reference jumps 0.1 rad on joint 4 at t = 0.02 s: a 15 N·m step of the spring."""
+        """The reference jumps 1 rad on joint 4 at t = 0.02 s: a 15 N·m step of the spring."""
 
         def reference(self, t, *, out):
             super().reference(t, out=out)
             if t >= 0.02 - 1e-9:
-                out[0][3] += 0.1
+                out[0][3] += 1.0
             return out
 
     for rate, clipped in ((100.0, True), (1e6, False)):  # 0.1 N·m per tick; and no real limit

@@ -242,7 +242,7 @@ def test_a_study_without_parquet_and_its_progress_bar_off_a_terminal(tmp_path: P
     done = _without({"pyarrow", "ray"}, """
         from phri.cli import main
         raise SystemExit(main(["study", "s", "--participants", "1", "--attempts", "1", "--tasks", "laptop",
-                               "--duration", "8", "--waypoints", "4", "--backend", "serial",
+                               "--duration", "8", "--waypoints", "4", "--knots", "0", "--backend", "serial",
                                "--max-episodes", "1"]))
     """, tmp_path)  # fmt: skip
     assert done.returncode == 0, done.stderr

@@ -446,12 +446,18 @@ def test_a_missing_population_file_is_a_clear_error(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_a_two_feature_task_is_corrected_on_both_features() -> None:
     """Issue 15: table and cup tilt both learned; the person pushes down and rights the cup, and the
-    learning robot ends better on both features than the impedance robot."""
+    learning robot ends closer to the desired behaviour on both features than the impedance robot
+    (as the study scores cost: |Φ_k(executed) − Φ_k(desired)|). Planned on every waypoint: with the
+    original's 4 knots (the study's tasks) the plan cannot lower the cup without tilting it until
+    the tilt's weight is learned too, and a push down that tilts the deformed plan lowers that
+    weight (docs/participant.md)."""
     from phri.sim import EpisodeConfig, World
     from phri.sim.episode import simulate_episode
 
     table, coffee = phri.load_task("table"), phri.load_task("coffee")
-    both = dataclasses.replace(table, name="table_coffee", features=(*table.features, coffee.features[1]))
+    both = dataclasses.replace(
+        table, name="table_coffee", features=(*table.features, coffee.features[1]), knots=0
+    )
     person = default_population().draw(0, 1)
     with World() as world:
         planner = Planner(both, world)
@@ -469,6 +475,8 @@ def test_a_two_feature_task_is_corrected_on_both_features() -> None:
             push = r.log_arrays["push"]
             assert (push[:, 2] < -0.5).any() and (np.linalg.norm(push[:, 3:], axis=1) > 0.2).any(), strategy
     table_k, coffee_k = both.feature_names.index("table"), both.feature_names.index("coffee")
+    desired = planner.features.phi(planner.desired)
     for k in (table_k, coffee_k):
-        assert phi["learning"][k] < 0.75 * phi["impedance"][k], both.feature_names[k]
+        off = {s: abs(phi[s][k] - desired[k]) for s in phi}
+        assert off["learning"] < 0.5 * off["impedance"], (both.feature_names[k], off)
         assert weights["learning"][k] > 0.1 and weights["impedance"][k] == 0.0

@@ -68,8 +68,9 @@ def test_a_20_N_push_at_the_hand_visibly_deflects_it(world) -> None:
         world.step(tau, np.array([0.0, 0.0, -20.0]))
     q, _ = world.state()
     moved = world.model.frame_pose(HAND, task.start)[:3, 3] - world.model.frame_pose(HAND, q)[:3, 3]
-    assert moved[2] > 0.03, f"a 20 N downward push moved the hand only {moved} m"
-    assert np.linalg.norm(moved) < 0.3
+    # As compliant as the study's arm (admittance mode): a push moves the cup tens of centimetres.
+    assert moved[2] > 0.1, f"a 20 N downward push moved the hand only {moved} m"
+    assert np.linalg.norm(moved) < 0.6
 
 
 def test_the_simulator_agrees_with_phri_on_gravity_with_the_cup(world) -> None:

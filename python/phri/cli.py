@@ -119,7 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", help="the four study tasks (or --task), both strategies, one simulated participant"
     )
     demo.add_argument("--out", default="out/demo", help="output folder (a fresh one is made if it exists)")
-    demo.add_argument("--seed", type=int, default=7, help="seed of the simulated participant")
+    demo.add_argument(
+        "--seed", type=int, default=7, help="seed of the participant's tremor and aim and of the sensor"
+    )
     demo.add_argument("--gui", action="store_true", help="show the PyBullet window")
     demo.add_argument("--no-frames", action="store_true", help="skip rendering PNG frames")
     demo.add_argument("--task", action="append", metavar="TASK",

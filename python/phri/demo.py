@@ -150,7 +150,9 @@ def run_demo(
     """Runs the demo into a fresh folder next to (or at) `out` and returns what it did.
 
     `tasks` are shipped task names or task files (None: the study's four,
-    :data:`~phri.config.STUDY_TASKS`); `seed` draws the simulated participant; `gui` shows
+    :data:`~phri.config.STUDY_TASKS`); the simulated participant is the default population's median
+    person (``ParticipantParams()``: the typical one, where a drawn person may be one of the few
+    too weak to register a push) and `seed` seeds their tremor, aim and the sensor; `gui` shows
     PyBullet's window; `frames` renders PNG frames. `on_episode` is called with each episode's
     result as it finishes (``phri demo`` prints its row). Each episode's row is appended to
     ``summary.csv`` as soon as it finishes, so an interrupted demo keeps what it did."""
@@ -159,7 +161,7 @@ def run_demo(
         raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
     check_out(Path(out))
     loaded = _tasks(STUDY_TASKS if tasks is None else tasks)
-    participant = ParticipantParams.draw(np.random.default_rng(seed))
+    participant = ParticipantParams()
     with World(params=WorldParams(gui=gui)) as world:
         # Every task is planned before anything is written: one that cannot run here (another
         # robot's, or one that cannot be planned safely) leaves no folder behind.

@@ -34,8 +34,8 @@ fn on_the_reference_the_law_is_gravity_compensation() {
     let mut qd = [0.0; 7];
     qd[5] = 0.2;
     c.torque(&q, &qd, &q_ref, &[0.0; 7], &mut tau).unwrap();
-    assert!((tau[3] - g[3] - 150.0 * 0.01).abs() < 1e-12);
-    assert!((tau[5] - g[5] + 5.0 * 0.2).abs() < 1e-12);
+    assert!((tau[3] - g[3] - 15.0 * 0.01).abs() < 1e-12);
+    assert!((tau[5] - g[5] + 15.0 * 0.2).abs() < 1e-12);
 }
 
 #[test]
@@ -44,7 +44,7 @@ fn saturation_clips_to_the_effort_limits_and_says_so() {
     let mut c = ImpedanceController::new(model, ImpedanceParams::jaco2_default()).unwrap();
     let q = place_lower();
     let mut q_ref = q.clone();
-    q_ref[4] += 2.0; // 50 N·m/rad · 2 rad = 100 N·m > 20 N·m
+    q_ref[4] += 3.0; // 10 N·m/rad · 3 rad = 30 N·m > 20 N·m
     let mut tau = vec![0.0; 7];
     let status = c.torque(&q, &[0.0; 7], &q_ref, &[0.0; 7], &mut tau).unwrap();
     assert_eq!(status.saturated, 1 << 4);

@@ -149,8 +149,8 @@ fn gain_array<'py>(py: Python<'py>, g: &Gain) -> PyResult<Bound<'py, PyArrayDyn<
 /// inertia M_R, the full law of eq. 5 by feedback linearisation (`torque_full`), saturated to the
 /// effort limits [N·m]. Gains are 1-D (diagonal, (n,)) or 2-D ((n, n)) arrays: stiffness K
 /// [N·m/rad], damping B [N·m·s/rad], inertia M_R [kg·m²]; full matrices must be symmetric positive
-/// semidefinite (M_R definite). K and B default to the JACO2 gains (200, 300, 150, 150, 50, 50, 30)
-/// and (20, 30, 15, 15, 5, 5, 3). `gravity_compensation` adds g(q) to eq. 6 (`torque`,
+/// semidefinite (M_R definite). K and B default to the JACO2 gains (20, 30, 15, 15, 10, 10, 6)
+/// and (40, 60, 30, 30, 15, 15, 10), as compliant as the study's arm. `gravity_compensation` adds g(q) to eq. 6 (`torque`,
 /// `torque_implicit`); eq. 5 always includes it (feedback linearisation cancels all the dynamics).
 /// With a `scene`, a virtual wall (on unless `wall=False`) adds a repulsive torque that keeps every
 /// collision body at least `wall_margin` [m] from the scene's furniture, whatever the reference and

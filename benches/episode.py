@@ -1,5 +1,6 @@
 """Times simulated 15 s study episodes at 1 kHz (PyBullet DIRECT, one core) and prints the median
-wall time and the speed-up over real time per task and strategy. ``make bench-episode``."""
+wall time and the speed-up over real time per task and strategy: the study's tasks, the JACO2's
+(the FR3's run on franky-sim). ``make bench-episode``."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import statistics
 import numpy as np
 
 import phri
+from phri.config import STUDY_TASKS
 from phri.sim import STRATEGIES, EpisodeConfig, ParticipantParams, Planner, World
 
 
@@ -22,7 +24,7 @@ def main() -> None:
     rows = []
     print(f"{'task':<8} {'strategy':<10} {'median [s]':>10} {'x real time':>12}")
     with World() as world:
-        for name in phri.task_names():
+        for name in STUDY_TASKS:
             task = phri.load_task(name)
             planner = Planner(task, world)
             for strategy in STRATEGIES:

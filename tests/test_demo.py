@@ -140,13 +140,13 @@ def test_the_coffee_tasks_feature_is_the_cups_tilt(monkeypatch, recorded, tmp_pa
 def test_phri_demo_runs_a_users_task_file(tmp_path, capsys) -> None:
     """`phri demo --task FILE` runs the task in the file (here the table task renamed and cut to 2 s),
     prints its rows and names its figures after it."""
-    short = shortened(phri.load_task("table"), 2.0, 5)
+    short = shortened(phri.load_task("table"), 2.0, 7)
     text = (Path(phri.__file__).parent / "tasks" / "table.toml").read_text(encoding="utf-8")
     goal = ", ".join(f"{g:.6f}" for g in np.rad2deg(short.goal))
     lines = []
     for line in text.splitlines():
         key = line.partition("=")[0].strip()
-        line = {"name": 'name = "my_table"', "duration": "duration = 2.0", "waypoints": "waypoints = 5",
+        line = {"name": 'name = "my_table"', "duration": "duration = 2.0", "waypoints": "waypoints = 7",
                 "goal": f"goal = [{goal}]"}.get(key, line)  # fmt: skip
         lines.append(line)
     task_file = tmp_path / "my_table.toml"

@@ -326,7 +326,7 @@ def test_learning_needs_less_effort_than_impedance_on_the_fr3(table_server: SimS
     # The same keys as a simulated episode's log (a JACO2 one, 0.5 s), and the FR3's own.
     table = load_task("table")  # its first 0.5 s (the goal moved towards the start in proportion)
     goal = table.start + (table.goal - table.start) * 0.5 / table.duration
-    jaco2 = dataclasses.replace(table, duration=0.5, waypoints=5, goal=goal)
+    jaco2 = dataclasses.replace(table, duration=0.5, waypoints=7, goal=goal)
     with World() as world:
         simulated = run_simulated(jaco2, world, ParticipantParams()).log_arrays
     assert set(simulated) <= set(learning.result.log_arrays)  # type: ignore[attr-defined]

@@ -18,7 +18,7 @@ from phri.study.errors import QuestionnaireError
 
 HEADER = "participant,strategy," + ",".join(f"q{i}" for i in range(1, 11))
 #: A study of four participants (no episodes are run: the questionnaire only needs its folder).
-FOUR = StudyConfig(participants=4, tasks=("human", "laptop"), duration=8.0, waypoints=5)
+FOUR = StudyConfig(participants=4, tasks=("human", "laptop"), duration=8.0, waypoints=7)
 
 
 def study_folder(path: Path, config: StudyConfig = FOUR) -> Path:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import phri
+from phri.config import knots_fit
 from phri.exceptions import InvalidParameterError, PlanningError, SafetyStopError, SimulationError
 from phri.sim import (
     LATER_THRESHOLDS,
@@ -31,9 +32,13 @@ NOBODY = ParticipantParams(tolerance=1e9, tilt_tolerance=1e9)
 
 def shortened(task: phri.Task, duration: float, waypoints: int) -> phri.Task:
     """`task` cut to its first `duration` seconds: the goal moved towards the start in proportion,
-    so the plan moves as fast as the full task's."""
+    so the plan moves as fast as the full task's; planned by the task's knots where they fit on
+    `waypoints` (7 or 13 for the study's 4), else on every waypoint."""
     goal = task.start + (task.goal - task.start) * duration / task.duration
-    return phri.Task(**{**task.__dict__, "duration": duration, "waypoints": waypoints, "goal": goal})
+    knots = task.knots if knots_fit(task.knots, waypoints) else 0
+    return phri.Task(
+        **{**task.__dict__, "duration": duration, "waypoints": waypoints, "goal": goal, "knots": knots}
+    )
 
 
 @pytest.fixture(scope="module")

@@ -49,10 +49,10 @@ from phri.study.targets import TargetsError, read_targets
 #: A study small enough for CI: 2 participants × 2 strategies × 2 tasks × 2 attempts = 16 episodes of 8 s
 #: (the shortest duration, with some margin, at which the human task's goal is reachable within the
 #: planner's joint speeds: shorter is a PlanningError).
-TINY = StudyConfig(participants=2, attempts=2, seed=7, tasks=("human", "laptop"), duration=8.0, waypoints=11)
+TINY = StudyConfig(participants=2, attempts=2, seed=7, tasks=("human", "laptop"), duration=8.0, waypoints=10)
 #: TINY as `phri study` options.
 TINY_ARGS = ["--participants", "2", "--attempts", "2", "--seed", "7", "--tasks", "human,laptop",
-             "--duration", "8", "--waypoints", "11"]  # fmt: skip
+             "--duration", "8", "--waypoints", "10"]  # fmt: skip
 
 
 def table_without_wall_time(run_dir: Path) -> pd.DataFrame:
@@ -157,15 +157,15 @@ def test_bad_study_parameters_are_clear_errors(kwargs: dict, key: str) -> None:
     assert isinstance(info.value, ConfigError | InvalidParameterError)
 
 
-def test_knots_override_every_tasks_and_must_be_fewer_than_its_waypoints() -> None:
+def test_knots_override_every_tasks_and_put_every_knot_on_a_waypoint() -> None:
     assert {t.knots for t in StudyConfig(knots=4).load_tasks().values()} == {4}
     assert {t.knots for t in StudyConfig(knots=0).load_tasks().values()} == {0}
     assert StudyConfig(knots=5).to_dict()["knots"] == 5
-    fewer = "knots must be fewer than task 'human''s {} waypoints, got {}"
-    with pytest.raises(StudyConfigError, match=fewer.format(31, 40)):
-        StudyConfig(knots=40).load_tasks()
-    with pytest.raises(StudyConfigError, match=fewer.format(11, 11)):
-        StudyConfig(knots=11, waypoints=11).load_tasks()
+    every = "3, 4, 6, 7, 11, 16"
+    for knots, waypoints, fitting in ((40, None, every), (5, None, every), (11, 11, "3, 6")):
+        message = rf"knots of task 'human' must be .*\({fitting}\), got {knots}"
+        with pytest.raises(StudyConfigError, match=message):
+            StudyConfig(knots=knots, waypoints=waypoints).load_tasks()
 
 
 def test_an_edited_study_json_beyond_the_limits_is_refused_at_once(reference: Path, tmp_path: Path) -> None:
@@ -1124,7 +1124,7 @@ def test_an_unreachable_ray_cluster_is_a_clear_error(
 def test_cli_study_resume_and_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run_dir = str(tmp_path / "s")
     common = ["--participants", "2", "--attempts", "1", "--tasks", "human,laptop", "--duration", "8",
-              "--waypoints", "11", "--backend", "serial", "--no-progress"]  # fmt: skip
+              "--waypoints", "10", "--backend", "serial", "--no-progress"]  # fmt: skip
     assert cli(["study", run_dir, *common, "--max-episodes", "3"]) == 0
     assert "3 of 8 episodes" in capsys.readouterr().out
     # A different study into the same folder: refused.

@@ -49,7 +49,7 @@ def _own_task(folder: Path, name: str = "my_laptop") -> Path:
 
 def _config(task: str) -> StudyConfig:
     return StudyConfig(
-        participants=1, attempts=1, seed=3, tasks=(task,), familiarization=None, duration=8.0, waypoints=11
+        participants=1, attempts=1, seed=3, tasks=(task,), familiarization=None, duration=8.0, waypoints=10
     )
 
 
@@ -113,7 +113,7 @@ def test_study_json_naming_a_file_outside_the_study_folder_is_refused(tmp_path: 
 def test_results_naming_a_log_outside_its_own_are_refused(tmp_path: Path, log: str) -> None:
     run_dir = tmp_path / "study"
     config = StudyConfig(
-        participants=1, attempts=1, tasks=("coffee",), familiarization=None, duration=8.0, waypoints=11
+        participants=1, attempts=1, tasks=("coffee",), familiarization=None, duration=8.0, waypoints=10
     )
     run_study(run_dir, config, backend="serial", progress=False, max_episodes=1)
     path = run_dir / "results.csv"

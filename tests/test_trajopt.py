@@ -417,7 +417,7 @@ def test_plans_by_knots_are_four_waypoints_planned_and_upsampled_as_the_original
         plan, info = by_knots.solve(w, task.start, task.goal)
         knots, info4 = four.solve(w, task.start, task.goal)
         assert info.converged and info.feasible, (name, which, info)
-        assert (info.iterations, info.coarse_iterations) == (0, info4.iterations)
+        assert (info.iterations, info.coarse_iterations) == (info4.iterations, info4.coarse_iterations)
         assert (info.cost, info.penalty) == (info4.cost, info4.penalty)
         times = np.linspace(0, 3, 31)
         upsampled = np.stack([np.interp(times, np.arange(4), knots[:, j]) for j in range(7)], axis=1)
@@ -434,8 +434,10 @@ def test_plans_by_knots_are_four_waypoints_planned_and_upsampled_as_the_original
 
 def test_knots_outside_their_range_are_typed_errors(robot) -> None:
     features = phri.Features(robot, ["efficiency", "table"])
-    for knots in (0, 2, 31, 40, -1):
+    for knots in (1, 2, 5, 30, 31, 40, -1):  # 5 and 30 would put knots between waypoints
         with pytest.raises(ex.InvalidParameterError, match="knots"):
             phri.TrajectoryOptimizer(features, 31, duration=15.0, knots=knots)
+    for off in (0, None):
+        assert phri.TrajectoryOptimizer(features, 31, duration=15.0, knots=off).levels == [31, 11]
     with pytest.raises(TypeError, match="knots"):
         phri.TrajectoryOptimizer(features, 31, duration=15.0, knots=4.0)  # type: ignore[arg-type]

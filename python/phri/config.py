@@ -98,10 +98,6 @@ class Task:
     waypoints: int
     task_feature: str
     features: tuple[FeatureSpec, ...]
-    #: Plan by this many knots (``phri.TrajectoryOptimizer(knots=...)``: piecewise linear through
-    #: knots evenly spaced in time, as the original planned 4 and upsampled them); 0 plans every
-    #: waypoint.
-    knots: int = 0
     scene: Scene = field(default_factory=Scene)
     source: str = "<memory>"
     #: The frame the features read (None: the robot's feature frame).
@@ -110,6 +106,10 @@ class Task:
     robot: str = "jaco2"
     #: The task's [safety] table (the tool's box, tighter joint limits).
     safety: TaskSafety = field(default_factory=TaskSafety)
+    #: Plan by this many knots (``phri.TrajectoryOptimizer(knots=...)``: piecewise linear through
+    #: knots evenly spaced in time, each on a waypoint, as the original planned 4 and upsampled them
+    #: to 31); 0 plans every waypoint.
+    knots: int = 0
 
     @property
     def feature_names(self) -> list[str]:
@@ -192,6 +192,20 @@ _PARAMETER_READERS: dict[str, Any] = {
     "samples": lambda f, key: _integer(f, key, 1),
     "height": lambda f, key: f.number(key),
 }
+
+
+def knots_fit(knots: int, waypoints: int) -> bool:
+    """Whether a plan of `waypoints` can be planned by `knots` (0: on every waypoint): each knot on a
+    waypoint, as ``phri.TrajectoryOptimizer(knots=...)`` requires (knots − 1 divides waypoints − 1)."""
+    return knots == 0 or (3 <= knots < waypoints and (waypoints - 1) % (knots - 1) == 0)
+
+
+def knots_expected(waypoints: int) -> str:
+    """What `knots` may be for a plan of `waypoints`, for a message."""
+    fitting = [k for k in range(3, waypoints) if knots_fit(k, waypoints)]
+    return f"0 (plan every waypoint) or a knot count with every knot on one of the {waypoints} waypoints " + (
+        f"({', '.join(map(str, fitting))})" if fitting else "(none fits)"
+    )
 
 
 def _integer(r: Reader, key: str, minimum: int, default: Any = ..., maximum: int | None = None) -> int:
@@ -312,9 +326,8 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     _check_limits(r, "goal", goal, scale, angles)
     waypoints = _integer(r, "waypoints", 3, 31, maximum=TrajectoryOptimizer.MAX_WAYPOINTS)
     knots = r.get("knots", 0)
-    if not (is_integer(knots) and (knots == 0 or 3 <= knots < waypoints)):
-        expected = f"0 (plan every waypoint) or an integer in 3..={waypoints - 1} (fewer than the waypoints)"
-        raise r.fail("knots", expected, knots)
+    if not (is_integer(knots) and knots_fit(knots, waypoints)):
+        raise r.fail("knots", knots_expected(waypoints), knots)
     scene = _scene(r)
     feats = r.get("features")
     if not isinstance(feats, dict) or not feats:

@@ -79,11 +79,12 @@ impl ImpedanceParams {
     /// Gains for the JACO2 holding the 0.3 kg cup, as compliant as the study's arm was: it ran in
     /// Kinova's admittance mode, and in the authors' published trajectories a person's push
     /// untilted the cup or lowered it by 20–30 cm within about a second, after which it drifted
-    /// back over seconds. Soft springs with twice their time constant in damping (B/K = 2 s; 1.5 s
-    /// at the wrist, whose roll a person's twist would otherwise rock) do that. In the PyBullet
-    /// scene (implicit law at 1 kHz) the arm tracks the study's plans within 0.5 cm at the hand
-    /// with nobody touching it (the damping acts on the velocity error, so the arm does not lag),
-    /// and a 20 N push at the hand held for 1.5 s moves it by about 42 cm (see tests/test_sim.py).
+    /// back over seconds. Soft springs with a time constant B/K of 2 s (1.5 s at joints 5 and 6,
+    /// 1.7 s at the roll, stiffer than the rest so that a person's twist does not rock it) do that.
+    /// Measured in the PyBullet scene (implicit law at 1 kHz): the arm tracks the study's plans
+    /// within 0.46–0.50 cm at the hand with nobody touching it (the damping acts on the velocity
+    /// error, so the arm does not lag), and a 20 N push down at the hand held for 1.5 s from the
+    /// table task's start moves it by 42 cm (tests/test_sim.py bounds both).
     /// Stiffer arms: `robot.toml`'s `[impedance]` (the FR3's).
     pub fn jaco2_default() -> Self {
         ImpedanceParams {

@@ -341,7 +341,11 @@ fn plans_by_knots_are_the_knot_problems_optimum_sampled_at_the_waypoints() {
         let info = opt.solve(&mut fs, &w, &start, &goal, None, &mut plan).unwrap();
         let alone = direct.solve(&mut fs, &w, &start, &goal, None, &mut knots).unwrap();
         assert!(info.converged && info.feasible, "{feature}: {info:?}");
-        assert_eq!((info.iterations, info.coarse_iterations), (0, alone.iterations), "{feature}: only the knots are solved");
+        assert_eq!(
+            (info.iterations, info.coarse_iterations, info.evaluations),
+            (alone.iterations, alone.coarse_iterations, alone.evaluations),
+            "{feature}: the knots are solved, nothing else"
+        );
         assert_eq!((info.cost, info.penalty), (alone.cost, alone.penalty), "{feature}");
         // Piecewise linear through the knot problem's plan, knots at waypoints 0, 10, 20, 30.
         for i in 0..31 {
@@ -369,7 +373,7 @@ fn plans_by_knots_are_the_knot_problems_optimum_sampled_at_the_waypoints() {
         assert!(phi[1] < phi0[1] - 1e-3, "{feature}: {} !< {}", phi[1], phi0[1]);
         let mut again = vec![0.0; 31 * 7];
         let warm = opt.solve(&mut fs, &w, &start, &goal, Some(&plan), &mut again).unwrap();
-        assert!(warm.converged && warm.coarse_iterations <= 2, "{feature}: {warm:?}");
+        assert!(warm.converged && warm.iterations <= 2, "{feature}: {warm:?}");
         assert!(again.iter().zip(&plan).all(|(a, b)| (a - b).abs() < 1e-6), "{feature}: the warm start moved");
         // Replans through the levels are deterministic.
         let mut base = opt.plan_levels();
@@ -383,10 +387,47 @@ fn plans_by_knots_are_the_knot_problems_optimum_sampled_at_the_waypoints() {
 }
 
 #[test]
-fn knots_outside_their_range_are_typed_errors() {
+fn knots_outside_their_range_or_off_the_waypoints_are_typed_errors() {
     let (fs, opt) = study_setup("table", 31);
-    for knots in [1, 2, 31, 40] {
+    // 5 knots on 31 waypoints would sit at waypoint 7.5; 30 at every waypoint but one.
+    for knots in [1, 2, 5, 30, 31, 40] {
         let err = TrajectoryOptimizer::new(&fs, 31, TrajoptParams { knots, ..opt.params().clone() }).err().unwrap();
         assert!(matches!(err, PhriError::InvalidParameter { ref arg, .. } if arg == "knots"), "{knots}: {err}");
+        if knots == 5 {
+            assert!(err.to_string().contains("3, 4, 6, 7, 11, 16"), "{err}");
+        }
     }
+    for knots in [3, 4, 6, 7, 11, 16] {
+        assert!(TrajectoryOptimizer::new(&fs, 31, TrajoptParams { knots, ..opt.params().clone() }).is_ok(), "{knots}");
+    }
+}
+
+#[test]
+fn a_plan_by_six_knots_passes_through_them_and_its_gradient_is_right() {
+    // Knots at waypoints 0, 6, ..., 30: the plan's knots are read off it exactly, so the objective
+    // at the plan is the solve's cost, and its gradient (on the knots' rows) matches finite
+    // differences of the objective along the plan's piecewise-linear family.
+    let (start, goal) = (deg(PICK_SHELF), deg(PLACE_LOWER));
+    let (mut fs, mut opt, _) = knots_setup("coffee", 6);
+    let w = [1.0, 1.0];
+    let mut plan = vec![0.0; 31 * 7];
+    let info = opt.solve(&mut fs, &w, &start, &goal, None, &mut plan).unwrap();
+    assert!(info.converged && info.feasible, "{info:?}");
+    let mut grad = vec![0.0; 31 * 7];
+    let (cost, penalty) = opt.objective(&mut fs, &w, &plan, &mut grad).unwrap();
+    assert_eq!((cost, penalty), (info.cost, info.penalty));
+    // Move knot 2 (waypoint 12) on joint 4 and the waypoints that interpolate it.
+    let bump = |h: f64| -> Vec<f64> {
+        let mut x = plan.clone();
+        for i in 7..18 {
+            x[i * 7 + 4] += h * (1.0 - (i as f64 - 12.0).abs() / 6.0);
+        }
+        x
+    };
+    let mut scratch = vec![0.0; 31 * 7];
+    let h = 1e-6;
+    let (cp, _) = opt.objective(&mut fs, &w, &bump(h), &mut scratch).unwrap();
+    let (cm, _) = opt.objective(&mut fs, &w, &bump(-h), &mut scratch).unwrap();
+    let fd = (cp - cm) / (2.0 * h);
+    assert!((fd - grad[12 * 7 + 4]).abs() < 1e-5 * (1.0 + fd.abs()), "fd {fd} vs {}", grad[12 * 7 + 4]);
 }

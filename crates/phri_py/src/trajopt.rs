@@ -151,11 +151,14 @@ impl PyTrajoptInfo {
 /// active set settles and includes them from then on. `coarsening` (default 3; 0 or 1 for none)
 /// solves first on coarser copies of the problem with about 1/`coarsening` of the segments each,
 /// down to `coarsest` waypoints (multiresolution: a cold plan starts from the coarse plan; see
-/// `phri_core::trajopt`). `knots` = K (3 ≤ K < waypoints) plans as the original system did: every
-/// plan is piecewise linear in joint space through K knots evenly spaced in time, found by
-/// optimising the features and penalties at the knots (trajopt on 4 waypoints, upsampled to 31),
-/// and checked for feasibility as sampled at the waypoints; None (the default) optimises every
-/// waypoint.
+/// `phri_core::trajopt`). `knots` = K plans as the original system did: every plan is piecewise
+/// linear in joint space through K knots evenly spaced in time (K ≥ 3, every knot on a waypoint:
+/// K − 1 divides waypoints − 1), found by optimising the features and penalties at the knots
+/// (trajopt on 4 waypoints, upsampled to 31; the collision penalty along the chords between them,
+/// `collision_samples` per waypoint segment, at most 64 per chord; the clearance at the knots
+/// only), and checked for feasibility as sampled at the waypoints, as executed; `objective` is then
+/// the knot problem's at a trajectory's knots, and a warm start `init` is read at the knots' times.
+/// None or 0 (the default) optimises every waypoint.
 #[pyclass(name = "TrajectoryOptimizer", module = "phri._phri")]
 pub struct PyTrajectoryOptimizer {
     pub(crate) optimizer: TrajectoryOptimizer,
@@ -288,9 +291,10 @@ impl PyTrajectoryOptimizer {
         let max_iterations = bounded("max_iterations", max_iterations, 1..=MAX_ITERATIONS, "Newton iterations")?;
         let coarsening = bounded("coarsening", coarsening, 0..=MAX_WAYPOINTS, "(segments per coarse segment; 0 or 1 for none)")?;
         let coarsest = bounded("coarsest", coarsest, 3..=MAX_WAYPOINTS, "waypoints")?;
+        // 0 or None: every waypoint; the core checks the rest (a knot on every waypoint it names).
         let knots = match knots {
             None => 0,
-            Some(k) => bounded("knots", k, 3..=waypoints - 1, "(start, a free knot, goal; fewer than the waypoints)")?,
+            Some(k) => bounded("knots", k, 0..=MAX_WAYPOINTS, "(0 or None: plan every waypoint)")?,
         };
         let collision_samples = bounded("collision_samples", collision_samples, 1..=MAX_COLLISION_SAMPLES, "points per segment")?;
         let set = features.set.clone();

@@ -81,8 +81,9 @@ _Recovery: Any = _protocol.AutomaticErrorRecoveryCommand
 def participant_for(task: Task, robot: Robot, seed: int, dt: float = TICK) -> Callable[[], Any]:
     """A maker of the study's simulated participant for `task` on `robot`, seeded with `seed`: each
     call gives a fresh person (the same one for the same seed), their parameters drawn from the
-    default population with `seed`, their desired behaviour the plan for the task's true weights (phri's planner, as in
-    simulation; made once, here). The one place the scene server makes a participant."""
+    default population with `seed`, their desired behaviour the plan for the task's true weights
+    (phri's planner, as in simulation; made once, here). The one place the scene server makes a
+    participant."""
     from types import SimpleNamespace
 
     from phri._phri import TimedTrajectory

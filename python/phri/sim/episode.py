@@ -270,7 +270,7 @@ class Planner:
             task.waypoints,
             duration=task.duration,
             speed_fraction=VELOCITY_MARGIN,
-            knots=task.knots or None,
+            knots=task.knots,
         )
         self.desired, info = self.optimizer.solve(task.vector("true"), task.start, task.goal)
         self.check(info, "true")

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from phri._validate import finite, is_integer, must_be, parse_toml
-from phri.config import STUDY_TASKS, Task, load_task, task_names
+from phri.config import STUDY_TASKS, Task, knots_expected, knots_fit, load_task, task_names
 from phri.exceptions import ConfigError, UnknownNameError
 from phri.sim.episode import STRATEGIES, EpisodeConfig
 from phri.sim.participant import ParticipantParams, Population, default_population, load_population
@@ -181,10 +181,10 @@ class StudyConfig:
                 task = dataclasses.replace(task, waypoints=self.waypoints)
             if self.knots is not None:
                 task = dataclasses.replace(task, knots=self.knots)
-            if task.knots and task.knots >= task.waypoints:
+            if not knots_fit(task.knots, task.waypoints):
                 raise StudyConfigError(
-                    f"study: knots must be fewer than task {task.name!r}'s {task.waypoints} waypoints, "
-                    f"got {task.knots}"
+                    f"study: knots of task {task.name!r} must be {knots_expected(task.waypoints)}, got "
+                    f"{task.knots} (knots = 0 plans every waypoint)"
                 )
             if task.name in tasks:
                 raise StudyConfigError(f"study: two tasks are named {task.name!r}; task names must be unique")
@@ -310,6 +310,8 @@ class StudyConfig:
                 for k, v in dataclasses.asdict(task).items()
                 if k not in ("source", "scene")
             }
+            if not task.knots:  # a task that plans every waypoint has the digest it had before knots
+                del d["knots"]
             d["scene"] = [_scene_object_record(o) for o in task.scene.objects]
             if isinstance(d.get("safety"), dict) and isinstance(d["safety"].get("limits"), dict):
                 # Where the file is, not what it says (a study reads its folder's copy on resume).

@@ -127,8 +127,8 @@ impl TrajectoryOptimizer {
     }
 
     /// Plan by knots ([`TrajoptParams::knots`]): the knot level solved as `start` says, `traj` set
-    /// to its interpolation. Returns (the knot level's iterations, its cost and penalty, whether
-    /// it converged).
+    /// to its interpolation. Returns the knot level's (iterations, its coarse levels' iterations,
+    /// evaluations, cost, penalty, whether it and its coarse levels converged).
     pub(super) fn solve_by_knots(
         &mut self,
         features: &mut FeatureSet,
@@ -136,7 +136,7 @@ impl TrajectoryOptimizer {
         deadline: Option<Instant>,
         start: Start<'_>,
         levels: Option<LevelsOut<'_>>,
-    ) -> (usize, f64, f64, bool) {
+    ) -> (usize, usize, usize, f64, f64, bool) {
         let mut coarse = self.coarse.take().expect("a plan by knots has its knot level");
         let mut traj = std::mem::take(&mut self.traj);
         let result = coarse.solve_knots(features, weights, &mut traj, deadline, start, levels);
@@ -225,13 +225,20 @@ impl Coarse {
     /// `MAX_COLLISION_SAMPLES`).
     fn knot_level(features: &FeatureSet, waypoints: usize, params: &TrajoptParams) -> Result<Box<Coarse>> {
         let knots = params.knots;
-        if knots >= waypoints {
+        let segments = waypoints - 1;
+        // Every knot on a waypoint: the plan then passes through its knots, and a plan's knots are
+        // read off its waypoints exactly (warm starts, the objective of a plan).
+        if knots >= waypoints || segments % (knots - 1) != 0 {
+            let fitting: Vec<String> = (3..waypoints).filter(|k| segments % (k - 1) == 0).map(|k| k.to_string()).collect();
             return Err(PhriError::invalid(
                 "knots",
-                format!("must be fewer than the waypoints ({waypoints}) they are sampled at, got {knots}"),
+                format!(
+                    "must put every knot on one of the {waypoints} waypoints (knots − 1 dividing {segments}: {}), got {knots}",
+                    if fitting.is_empty() { "none".to_string() } else { fitting.join(", ") }
+                ),
             ));
         }
-        let (segments, intervals) = (waypoints - 1, knots - 1);
+        let intervals = knots - 1;
         let ratio = segments as f64 / intervals as f64;
         let mut knot_params = params.clone();
         knot_params.knots = 0;
@@ -326,8 +333,8 @@ impl Coarse {
 
     /// Plan by knots: solves the knot problem — from the knots of `traj` (`Start::Plan`), from the
     /// knot plan that goes with it (`Start::Levels`), or from the straight line — and sets `traj`
-    /// (N × n) to the knots' interpolation. Returns the knot level's iterations and whether it
-    /// converged.
+    /// (N × n) to the knots' interpolation. Returns what [`TrajectoryOptimizer::solve_by_knots`]
+    /// returns.
     fn solve_knots(
         &mut self,
         features: &mut FeatureSet,
@@ -336,7 +343,7 @@ impl Coarse {
         deadline: Option<Instant>,
         start: Start<'_>,
         levels: Option<LevelsOut<'_>>,
-    ) -> (usize, f64, f64, bool) {
+    ) -> (usize, usize, usize, f64, f64, bool) {
         let n = self.optimizer.dof;
         let m = traj.len() / n;
         self.weights.copy_from_slice(weights);
@@ -352,9 +359,10 @@ impl Coarse {
             }
             other => self.prepare(&traj[..n], &traj[(m - 1) * n..], other),
         };
-        let (iterations, coarse_iterations, _, cost, penalty, converged) = self.solve(features, deadline, below, levels);
+        let (iterations, coarse_iterations, evaluations, cost, penalty, converged) =
+            self.solve(features, deadline, below, levels);
         self.hand_down(traj, false);
-        (iterations + coarse_iterations, cost, penalty, converged && self.optimizer.coarse_converged)
+        (iterations, coarse_iterations, evaluations, cost, penalty, converged && self.optimizer.coarse_converged)
     }
 
     /// Hands the coarse plan down to the fine plan `traj` (N × n, ends kept): its interpolation,

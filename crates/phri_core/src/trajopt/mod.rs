@@ -423,9 +423,10 @@ impl TrajectoryOptimizer {
     ) -> (usize, usize, usize, f64, f64, bool) {
         if self.by_knots() {
             // The plan is the knots' interpolation: nothing is left to optimise on the waypoints.
-            let (knot_iterations, cost, penalty, converged) = self.solve_by_knots(features, weights, deadline, start, levels);
+            let (iterations, coarse_iterations, evaluations, cost, penalty, converged) =
+                self.solve_by_knots(features, weights, deadline, start, levels);
             self.coarse_converged = converged;
-            return (0, knot_iterations, 0, cost, penalty, converged);
+            return (iterations, coarse_iterations, evaluations, cost, penalty, converged);
         }
         let (coarse_iterations, coarse_converged) = match start {
             Start::Plan => (0, true),

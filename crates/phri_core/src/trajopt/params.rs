@@ -169,9 +169,9 @@ pub struct TrajoptParams {
     pub coarsening: usize,
     /// Fewest waypoints of a coarse level (default 8): a level that would have fewer is not built.
     pub coarsest: usize,
-    /// Plan by knots: 0 (the default) optimises every waypoint; K ≥ 3 makes every plan piecewise
-    /// linear in joint space through K knots evenly spaced in time (the start and the goal among
-    /// them), found by optimising the problem on the knots (the features and penalties at the
+    /// Plan by knots: 0 (the default) optimises every waypoint; K ≥ 3, with K − 1 dividing the
+    /// waypoints' segments (every knot on a waypoint), makes every plan piecewise linear in joint
+    /// space through K knots evenly spaced in time (the start and the goal among them), found by optimising the problem on the knots (the features and penalties at the
     /// knots, the collision penalty along the chords between them, the step limit per knot
     /// interval) and sampled at the waypoints. This is the original system's planner, which ran
     /// trajopt on 4 waypoints and upsampled its plan linearly to 31 (`coarsening` then applies
@@ -264,11 +264,13 @@ impl TrajoptParams {
 /// What a solve did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrajoptInfo {
-    /// Newton iterations on the given waypoints [count].
+    /// Newton iterations on the given waypoints (for a plan by knots: on the knots) [count].
     pub iterations: usize,
-    /// Newton iterations on the coarse levels, all together (0 without multiresolution) [count].
+    /// Newton iterations on the coarse levels, all together (0 without multiresolution; for a plan
+    /// by knots, the knot problem's own coarse levels) [count].
     pub coarse_iterations: usize,
-    /// Cost evaluations on the given waypoints, each one Φ, ∇Φ and ∇²Φ [count].
+    /// Cost evaluations on the given waypoints (for a plan by knots: on the knots), each one Φ,
+    /// ∇Φ and ∇²Φ [count].
     pub evaluations: usize,
     /// Final cost w·Φ + penalty [cost].
     pub cost: f64,

@@ -263,8 +263,8 @@ def test_bad_task_input_is_a_clear_error(world, tmp_path) -> None:
     outside = phri.Task(**{**task.__dict__, "goal": np.zeros(7)})  # q = 0 violates joints 2, 4, 6
     with pytest.raises(InvalidParameterError, match="outside the limits"):
         Planner(outside, world)
-    # A goal too far for the duration at the allowed joint speeds.
-    hurried = phri.Task(**{**task.__dict__, "duration": 2.0, "waypoints": 5})
+    # A goal too far for the duration at the allowed joint speeds (7 waypoints: the task's 4 knots fit).
+    hurried = phri.Task(**{**task.__dict__, "duration": 2.0, "waypoints": 7})
     with pytest.raises(PlanningError, match=r"the goal is too far from the start for duration = 2 s"):
         Planner(hurried, world)
     far = task.goal.copy()

@@ -241,7 +241,7 @@ def test_folder_holds_table_logs_and_manifest(reference: Path) -> None:
     # Every episode has its log with the time series and the desired plan.
     for log in table["log"]:
         with np.load(reference / log) as data:
-            assert data["q"].shape[1] == 7 and data["desired"].shape == (11, 7)
+            assert data["q"].shape[1] == 7 and data["desired"].shape == (TINY.waypoints, 7)
             assert len(data["t"]) == pytest.approx(801, abs=1)  # 8 s at 100 Hz
     assert (table["effort"] >= 0).all() and (table["interaction_time"] >= 0).all()
 

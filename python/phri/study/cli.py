@@ -11,15 +11,20 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import shlex
 import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from phri._phri import UPDATE_RULES
 from phri.cli import file_error
 from phri.exceptions import PhriError
+
+if TYPE_CHECKING:
+    from phri.study.calibrate import CalibrationSettings
 
 __all__ = ["main", "register"]
 
@@ -460,29 +465,44 @@ def cmd_questionnaire(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibration_settings(args: argparse.Namespace) -> CalibrationSettings:
+    from phri.study.calibrate import DEFAULT_FREE, CalibrationSettings
+
+    return CalibrationSettings(
+        participants=args.participants, attempts=args.attempts, seed=args.seed, budget=args.budget,
+        free=args.free or DEFAULT_FREE, tolerance=args.tolerance, workers=args.workers,
+    )  # fmt: skip
+
+
+def _calibrate_command(args: argparse.Namespace, settings: CalibrationSettings) -> str:
+    """The command that reruns this calibration, every setting spelled out and quoted for a POSIX
+    shell, whatever the command line or `main`'s arguments left at their defaults."""
+    words = ["phri", "calibrate", str(args.targets), "--out", str(args.out)]
+    if args.population:
+        words += ["--population", str(args.population)]
+    words += ["--participants", str(settings.participants), "--attempts", str(settings.attempts),
+              "--seed", str(settings.seed), "--budget", str(settings.budget),
+              "--free", ",".join(settings.free), "--tolerance", repr(settings.tolerance),
+              "--workers", str(settings.workers)]  # fmt: skip
+    if args.accept_misses:
+        words.append("--accept-misses")
+    return shlex.join(words)
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from phri._extras import check_part
 
     try:
         check_part("a study")
         from phri.sim.participant import load_population
-        from phri.study.calibrate import (
-            DEFAULT_FREE,
-            CalibrationError,
-            CalibrationSettings,
-            calibrate,
-            write_population,
-        )
+        from phri.study.calibrate import CalibrationError, calibrate, write_population
         from phri.study.targets import read_targets
 
         if args.out.exists():
             raise FileExistsError(f"{args.out} exists; a population, once written, is never overwritten")
         targets = read_targets(args.targets)
         start = load_population(args.population) if args.population else None
-        settings = CalibrationSettings(
-            participants=args.participants, attempts=args.attempts, seed=args.seed, budget=args.budget,
-            free=args.free or DEFAULT_FREE, tolerance=args.tolerance, workers=args.workers,
-        )  # fmt: skip
+        settings = _calibration_settings(args)
         result = calibrate(
             targets, start, settings, progress=not args.no_progress and not getattr(args, "quiet", 0)
         )
@@ -490,11 +510,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         minutes, seconds = divmod(result.elapsed, 60)
         print(f"{result.evaluations} candidates in {int(minutes)} min {seconds:.0f} s; loss "
               f"{result.start.loss:.4g} at the start, {result.best.loss:.4g} at the best")  # fmt: skip
-        command = (
-            " ".join(["phri", "calibrate", *sys.argv[2:]])
-            if sys.argv[1:2] == ["calibrate"]
-            else (f"phri calibrate {args.targets} --out {args.out}")
-        )
+        command = _calibrate_command(args, settings)
         try:
             path = write_population(result, args.out, command=command, accept_misses=args.accept_misses)
         except CalibrationError as e:

@@ -20,7 +20,8 @@ cell: no target). Two kinds of row:
   interaction time and cost (|cost − desired cost|), with its error degrees of freedom ``df_error``
   (116 in the paper: 120 trials).
 
-Bad input is a :class:`TargetsError` naming the file, the line and the column.
+Every number is finite and > 0 (an SD or F of 0 is no target: calibration fits the log of each
+ratio). Bad input is a :class:`TargetsError` naming the file, the line and the column.
 """
 
 from __future__ import annotations
@@ -126,14 +127,16 @@ class Targets:
             raise TargetsError(f"{self.source}: task(s) {missing} are not among {what} {list(available)}")
 
 
-def _number(source: str, line: int, column: str, text: str, *, positive: bool) -> float:
+def _number(source: str, line: int, column: str, text: str) -> float:
+    """A target: finite and > 0 (calibration fits log-ratios, and a report divides by it)."""
     try:
         v = float(text)
     except ValueError:
         raise TargetsError(f"{source}: line {line}, column '{column}': not a number: {text!r}") from None
-    if not math.isfinite(v) or v < 0 or (positive and v == 0):
-        want = "a finite number > 0" if positive else "a finite number >= 0"
-        raise TargetsError(f"{source}: line {line}, column '{column}' must be {want}, got {text}")
+    if not (math.isfinite(v) and v > 0):
+        raise TargetsError(
+            f"{source}: line {line}, column '{column}' must be a finite number > 0, got {text}"
+        )
     return v
 
 
@@ -180,11 +183,9 @@ def _parse(text: str, source: str) -> Targets:
                     f"{source}: line {line}: column '{stray[0]}' belongs to a pooled test (a row with an "
                     "empty strategy), not to a task × strategy cell"
                 )
-            means = tuple((m, _number(source, line, m, r[m], positive=True)) for m in MEASURES if r.get(m))
+            means = tuple((m, _number(source, line, m, r[m])) for m in MEASURES if r.get(m))
             sds = tuple(
-                (m, _number(source, line, f"{m}_sd", r[f"{m}_sd"], positive=False))
-                for m in MEASURES
-                if r.get(f"{m}_sd")
+                (m, _number(source, line, f"{m}_sd", r[f"{m}_sd"])) for m in MEASURES if r.get(f"{m}_sd")
             )
             if not means:
                 raise TargetsError(
@@ -205,7 +206,7 @@ def _parse(text: str, source: str) -> Targets:
                     "test, which takes F values (f_effort, f_interaction_time, f_cost, df_error) only"
                 )
             fs = tuple(
-                (measure, _number(source, line, column, r[column], positive=False))
+                (measure, _number(source, line, column, r[column]))
                 for column, measure in F_COLUMNS.items()
                 if r.get(column)
             )
@@ -213,7 +214,7 @@ def _parse(text: str, source: str) -> Targets:
                 raise TargetsError(f"{source}: line {line}: a pooled test without any F value")
             if not r.get("df_error"):
                 raise TargetsError(f"{source}: line {line}, column 'df_error': missing (116 in the paper)")
-            df = _number(source, line, "df_error", r["df_error"], positive=True)
+            df = _number(source, line, "df_error", r["df_error"])
             tasks = tuple(t.strip() for t in task.split("+") if t.strip())
             pooled.append(PooledTest(tasks, fs, df))
     if not cells:

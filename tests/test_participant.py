@@ -234,6 +234,27 @@ def test_the_person_pushes_down_on_a_cup_held_too_high_and_holds_between_looks(d
     assert held is not None and held[0] is force and held[1] is torque
 
 
+@pytest.mark.parametrize("over", [0.9, 1.1])
+def test_an_error_is_pushed_only_once_it_is_visible(desired, over: float) -> None:
+    """`tolerance` [m] and `tilt_tolerance` [rad] are what the person can see: a cup too high, or
+    tilted, by 0.9 of it is left alone, by 1.1 of it is pushed."""
+    table, coffee = phri.load_task("table"), phri.load_task("coffee")
+    params = ParticipantParams(delay=0.0, noise=0.0, rate=100.0, tolerance=0.02, tilt_tolerance=0.1)
+    q = desired["table"][8]
+    high = moved(JACO2, q, np.array([0.0, 0.0, over * params.tolerance, 0.0, 0.0, 0.0]))
+    person = Participant(params, table, JACO2, desired["table"], np.random.default_rng(0))
+    assert person.wrench(0.0, q) is None
+    assert (person.wrench(0.01, high) is not None) is (over > 1.0)
+    q = desired["coffee"][12]
+    upright = JACO2.frame_pose(JACO2.feature_frame, q)[:3, 0]
+    axis = np.cross(upright, [0.0, 0.0, 1.0])
+    axis /= np.linalg.norm(axis)
+    tilted = moved(JACO2, q, np.concatenate([np.zeros(3), -over * params.tilt_tolerance * axis]))
+    person = Participant(params, coffee, JACO2, desired["coffee"], np.random.default_rng(0))
+    assert person.wrench(0.0, q) is None
+    assert (person.wrench(0.01, tilted) is not None) is (over > 1.0)
+
+
 def test_a_hand_on_a_steadily_moving_cup_does_not_drag_on_it_but_trails_a_change_of_course(desired) -> None:
     # The hand aims where the person expects the cup: where they saw it `delay` ago, carried on at
     # the velocity they saw. A spring aimed where they saw it would pull back on a cup carried on at

@@ -1184,6 +1184,34 @@ def test_a_failed_episode_hands_back_its_log_so_far(monkeypatch: pytest.MonkeyPa
         assert 15 <= len(log["t"]) <= 21
 
 
+def test_a_second_attempt_is_run_by_the_person_with_practice(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The runner hands a person's later attempt their practised parameters (for_attempt), the same
+    person's otherwise; the simulation itself is replaced (what it would do with them is
+    tests/test_participant.py's)."""
+    from phri.exceptions import SimulationError
+    from phri.study import runner as runner_module
+
+    seen: dict[int, object] = {}
+
+    def record(task, world, person, config, *, seed, planner):  # noqa: ANN001, ANN202
+        seen[len(seen) + 1] = person
+        raise SimulationError("not simulated")
+
+    monkeypatch.setattr(runner_module, "simulate_episode", record)
+    runner = runner_module.EpisodeRunner(TINY, TINY.load_tasks())
+    try:
+        spec = schedule(TINY)[0]
+        for attempt in (1, 2):
+            outcome = runner.run(dataclasses.replace(spec, attempt=attempt))
+            assert outcome.row["status"] == "failed" and "not simulated" in outcome.row["error"]
+    finally:
+        runner.close()
+    person = participant_params(TINY.seed, spec.participant, TINY.population)
+    assert person.practice > 0
+    assert seen == {1: person, 2: person.for_attempt(2)}
+    assert seen[2].patience < person.patience  # type: ignore[attr-defined]
+
+
 @pytest.mark.parametrize(
     ("old", "new"),
     [

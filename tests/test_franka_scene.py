@@ -10,12 +10,14 @@ measured on the robot's clock (RobotState.t), never on the wall clock.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import os
 import signal
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pylibfranka
@@ -477,8 +479,11 @@ def test_stopping_a_server_while_its_output_is_read_leaves_no_thread_error(
 # -- phri sim-server ------------------------------------------------------------------------------
 
 
-def test_sim_server_serves_a_task_until_ctrl_c() -> None:
-    command = [sys.executable, "-m", "phri", "sim-server", "--task", "human", "--host", "127.0.15.4"]
+def test_sim_server_serves_a_task_until_ctrl_c(tmp_path: Path) -> None:
+    population = tmp_path / "lab.toml"
+    population.write_text(STRONG)
+    command = [sys.executable, "-m", "phri", "sim-server", "--task", "human", "--host", "127.0.15.4",
+               "--population", str(population)]  # fmt: skip
     # Started with SIGINT ignored, as a shell starts a background job: Ctrl-C must stop it all the same.
     process = subprocess.Popen(
         command + ["--realtime", "2", "--seed", "5"], stdout=subprocess.PIPE, text=True,
@@ -487,7 +492,9 @@ def test_sim_server_serves_a_task_until_ctrl_c() -> None:
     try:
         assert process.stdout is not None
         line = process.stdout.readline()
-        assert line.startswith(f"{READY} 127.0.15.4 (task fr3_human, participant seed 5, 2x slower")
+        assert line.startswith(
+            f"{READY} 127.0.15.4 (task fr3_human, participant seed 5 of population {population}, 2x slower"
+        )
         robot = pylibfranka.Robot("127.0.15.4", pylibfranka.RealtimeConfig.kIgnore)
         assert robot.read_once().robot_mode == pylibfranka.RobotMode.Idle
         del robot
@@ -513,6 +520,7 @@ def test_sim_server_serves_a_task_until_ctrl_c() -> None:
         (["--task", "table", "--realtime", "0"], r"realtime must be a slow-down factor in \(0, 100\]"),
         (["--task", "table", "--fault", "reflex:oops"], "unknown libfranka error oops"),
         (["--task", "table", "--seed", "-1"], "--seed must be >= 0"),
+        (["--task", "table", "--population", "nobody.toml"], "nobody.toml: population file not found"),
     ],
 )
 def test_sim_server_refuses_bad_input(
@@ -524,6 +532,29 @@ def test_sim_server_refuses_bad_input(
     err = capsys.readouterr().err
     assert err.startswith("phri sim-server: error: ")
     assert __import__("re").search(message, err), err
+
+
+#: A lab's population: phri's default but for a fixed, strong push.
+STRONG = 'extends = "default"\n[parameters.max_force]\ndistribution = "fixed"\nvalue = 25.0\n'
+
+
+def test_the_servers_participant_is_drawn_from_the_population_it_is_given(tmp_path: Path) -> None:
+    from phri.franka.scene_server import participant_for
+    from phri.sim.participant import default_population, load_population
+
+    lab = tmp_path / "lab.toml"
+    lab.write_text(STRONG)
+    task = load_task("fr3_table")
+    default = participant_for(task, FR3, seed=4)().params
+    assert default == default_population().draw_from(np.random.default_rng(4))
+    person = participant_for(task, FR3, seed=4, population=load_population(lab))().params
+    assert person.max_force == 25.0 != default.max_force
+    assert dataclasses.replace(person, max_force=default.max_force) == default  # the same draw otherwise
+    assert SimServer("127.0.15.9", task="table", population=lab).command()[-2:] == ["--population", str(lab)]
+    bad = tmp_path / "bad.toml"
+    bad.write_text(STRONG.replace("value = 25.0", "value = -25.0"))
+    with pytest.raises(ConfigError, match=f"^{bad}: key 'parameters.max_force.value'"):
+        SimServer("127.0.15.9", task="table", population=bad)
 
 
 def test_a_task_for_another_robot_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:

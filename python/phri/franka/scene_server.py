@@ -36,7 +36,7 @@ import threading
 import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Sequence
-from typing import Any, TextIO, cast
+from typing import TYPE_CHECKING, Any, TextIO, cast
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from phri.exceptions import InvalidParameterError
 from phri.franka.faults import ERROR_NAMES, Fault
 from phri.franka.move import START_TOLERANCE
 from phri.franka.sim_server import READY
+
+if TYPE_CHECKING:
+    from phri.sim.participant import Population
 
 __all__ = ["build_server", "participant_for", "scene_bodies", "serve"]
 
@@ -78,17 +81,19 @@ _SimulationServer: Any = _franky_sim.SimulationServer
 _Recovery: Any = _protocol.AutomaticErrorRecoveryCommand
 
 
-def participant_for(task: Task, robot: Robot, seed: int, dt: float = TICK) -> Callable[[], Any]:
+def participant_for(
+    task: Task, robot: Robot, seed: int, dt: float = TICK, population: Population | None = None
+) -> Callable[[], Any]:
     """A maker of the study's simulated participant for `task` on `robot`, seeded with `seed`: each
-    call gives a fresh person (the same one for the same seed), their parameters drawn from the
-    default population with `seed`, their desired behaviour the plan for the task's true weights
-    (phri's planner, as in simulation; made once, here). The one place the scene server makes a
-    participant."""
+    call gives a fresh person (the same one for the same seed), their parameters drawn from
+    `population` (None: phri's default) with `seed`, their desired behaviour the plan for the task's
+    true weights (phri's planner, as in simulation; made once, here). The one place the scene server
+    makes a participant."""
     from types import SimpleNamespace
 
     from phri._phri import TimedTrajectory
     from phri.sim.episode import Planner
-    from phri.sim.participant import Participant, ParticipantParams
+    from phri.sim.participant import Participant, default_population
     from phri.sim.world import World
 
     # The planner reads only the world's model; the scene server has no PyBullet world.
@@ -96,7 +101,7 @@ def participant_for(task: Task, robot: Robot, seed: int, dt: float = TICK) -> Ca
     desired = TimedTrajectory(planner.desired, task.duration)
 
     def make() -> Any:
-        params = ParticipantParams.draw(np.random.default_rng(seed))
+        params = (population or default_population()).draw_from(np.random.default_rng(seed))
         # The person's own random stream, as an episode spawns it from the same seed.
         person_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[0])
         return Participant(params, task, robot, desired, person_rng, dt=dt)
@@ -493,10 +498,12 @@ def build_server(
     faults: Sequence[Fault] = (),
     channel: queue.SimpleQueue[Fault] | None = None,
     report: Report | None = None,
+    population: Population | None = None,
 ) -> SceneServer:
     """The scene server for `task` (None: the bare FR3 at franky-sim's default pose) on `host`, not
     started (use it as a context manager, then ``run_async``/``run_forever``). The arm starts at the
-    task's start pose; `person` puts the participant seeded `seed` in the scene."""
+    task's start pose; `person` puts the participant seeded `seed`, drawn from `population` (None:
+    phri's default), in the scene."""
     sim = _simulator.MujocoSimulator(enable_visualization=False)
     sim.init()
     if task is None:
@@ -511,7 +518,7 @@ def build_server(
         for body in scene_bodies(task.scene):
             sim.worldbody.append(body)
         model = Robot.fr3()
-        make_person = participant_for(task, model, seed) if person else None
+        make_person = participant_for(task, model, seed, population=population) if person else None
     start = None if task is None else np.asarray(task.start, dtype=float)
     return SceneServer(sim, host, Push(make_person, robot, start), faults, channel, report)
 
@@ -546,18 +553,21 @@ def serve(
     control: TextIO | None = None,
     report: Report | None = None,
     stop: threading.Event | None = None,
+    population: Population | None = None,
 ) -> None:
     """Serves the scene on `host` until interrupted (Ctrl-C), `stop` is set or the control channel
     closes; `realtime` slows the simulation down (2: each 1 ms tick takes 2 ms of wall time). Faults
     come from the schedule `faults` and, one per line, from `control` (the control channel; None:
-    none). A closed control channel means its writer is gone (a SimServer's process killed without
+    none). The participant is drawn from `population` (None: phri's default). A closed control
+    channel means its writer is gone (a SimServer's process killed without
     stopping its server): the server stops rather than run on, orphaned."""
     report = report or _log
     channel: queue.SimpleQueue[Fault] = queue.SimpleQueue()
     closed = threading.Event()
     with build_server(
-        host, task=task, seed=seed, person=person, faults=faults, channel=channel, report=report
-    ) as server:
+        host, task=task, seed=seed, person=person, faults=faults, channel=channel, report=report,
+        population=population,
+    ) as server:  # fmt: skip
         if control is not None:
             threading.Thread(
                 target=read_channel, args=(control, channel, report, closed), daemon=True
@@ -568,7 +578,9 @@ def serve(
         scene = (
             "the bare FR3"
             if task is None
-            else f"task {task.name}" + (f", participant seed {seed}" if person else ", no participant")
+            else f"task {task.name}"
+            + (f", participant seed {seed}" if person else ", no participant")
+            + (f" of population {population.source}" if person and population is not None else "")
         )
         report(f"{READY} {host} ({scene}, {realtime:g}x slower than real time); Ctrl-C stops it")
         try:

@@ -96,8 +96,9 @@ def fr3_task(name_or_path: str | Path) -> Task:
 class SimServer:
     """phri's scene server on `host` (a loopback address) in a child process, slowed by `realtime`
     (1: real time; 2: each 1 ms tick takes 2 ms of wall time, for loaded machines). `task` (an FR3
-    task name or file; None: the bare FR3) brings its scene and the participant seeded `seed`
-    (`person=False`: the scene without them); `duration` [s] overrides the task's (the person's
+    task name or file; None: the bare FR3) brings its scene and the participant seeded `seed`, drawn
+    from `population` (a population file or shipped name; None: phri's default; `person=False`: the
+    scene without them); `duration` [s] overrides the task's (the person's
     desired behaviour is the plan for it, so a client running the task shortened must shorten it
     here too); `faults` is a schedule (``KIND[:ARG][@T]`` strings, see :mod:`phri.franka.faults`),
     and :meth:`inject` sends one through the control channel.
@@ -113,6 +114,7 @@ class SimServer:
         task: str | Path | None = None,
         seed: int = 0,
         person: bool = True,
+        population: str | Path | None = None,
         duration: float | None = None,
         faults: Sequence[str] = (),
         log_protocol: bool = False,
@@ -125,6 +127,11 @@ class SimServer:
             raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
         if task is not None:
             fr3_task(task)  # a missing or wrong task is a ConfigError here, not a dead child
+        if population is not None:
+            from phri.sim.participant import load_population
+
+            load_population(population)  # likewise a bad population file
+        self.population = population
         self.duration = None if duration is None else check_duration(duration)
         self.task, self.seed, self.person, self.log_protocol = task, seed, person, log_protocol
         self.faults = [Fault.parse(f).spec() for f in faults]
@@ -141,6 +148,8 @@ class SimServer:
             command += ["--task", str(self.task)]
         if self.duration is not None:
             command += ["--duration", repr(self.duration)]
+        if self.population is not None:
+            command += ["--population", str(self.population)]
         if not self.person:
             command.append("--no-person")
         if self.log_protocol:
@@ -251,6 +260,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None,
                         help="override the task's duration [s] (the person's plan lasts as long; "
                         "give the client the same override)")  # fmt: skip
+    parser.add_argument("--population", default=None,
+                        help="population the participant is drawn from: a TOML file or a shipped name "
+                        "(default: default; see `phri study --population`)")  # fmt: skip
     parser.add_argument("--no-person", action="store_true", help="the scene without the participant")
     parser.add_argument("--fault", action="append", default=[], metavar="KIND[:ARG][@T]",
                         help="inject a fault (repeatable): reflex[:ERRORS], user_stop[:S], "
@@ -281,6 +293,11 @@ def run(args: argparse.Namespace) -> int:
         logging.getLogger("franky_sim").addHandler(handler)
         logging.getLogger("franky_sim").setLevel(logging.DEBUG)
     task = fr3_task(args.task) if args.task is not None else None
+    population = None
+    if args.population is not None:
+        from phri.sim.participant import load_population
+
+        population = load_population(args.population)  # a bad file: its error, before serving
     if args.duration is not None:
         if task is None:
             raise InvalidParameterError("--duration needs --task (the bare FR3 has no task to shorten)")
@@ -294,6 +311,7 @@ def run(args: argparse.Namespace) -> int:
         realtime=realtime,
         seed=args.seed,
         person=not args.no_person,
+        population=population,
         faults=faults,
         control=sys.stdin if args.control_stdin else None,
         report=lambda line: print(line, flush=True),  # the ready line SimServer and users wait for

@@ -12,6 +12,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -538,7 +539,9 @@ def test_sim_server_refuses_bad_input(
 STRONG = 'extends = "default"\n[parameters.max_force]\ndistribution = "fixed"\nvalue = 25.0\n'
 
 
-def test_the_servers_participant_is_drawn_from_the_population_it_is_given(tmp_path: Path) -> None:
+def test_the_servers_participant_is_drawn_from_the_population_it_is_given(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     from phri.franka.scene_server import participant_for
     from phri.sim.participant import default_population, load_population
 
@@ -551,9 +554,14 @@ def test_the_servers_participant_is_drawn_from_the_population_it_is_given(tmp_pa
     assert person.max_force == 25.0 != default.max_force
     assert dataclasses.replace(person, max_force=default.max_force) == default  # the same draw otherwise
     assert SimServer("127.0.15.9", task="table", population=lab).command()[-2:] == ["--population", str(lab)]
+    # A file named like a shipped population is the file: the child is given its absolute path.
+    (tmp_path / "default").write_text(STRONG)
+    monkeypatch.chdir(tmp_path)
+    named = SimServer("127.0.15.9", task="table", population=Path("default")).command()[-1]
+    assert named == str(tmp_path / "default")
     bad = tmp_path / "bad.toml"
     bad.write_text(STRONG.replace("value = 25.0", "value = -25.0"))
-    with pytest.raises(ConfigError, match=f"^{bad}: key 'parameters.max_force.value'"):
+    with pytest.raises(ConfigError, match=f"^{re.escape(str(bad))}: key 'parameters.max_force.value'"):
         SimServer("127.0.15.9", task="table", population=bad)
 
 

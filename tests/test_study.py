@@ -1456,7 +1456,9 @@ def test_the_recorded_calibration_command_reruns_the_same_calibration() -> None:
     words = shlex.split(command)
     assert words[:2] == ["phri", "calibrate"]
     again = build_parser().parse_args(words[1:])
-    assert _calibration_settings(again) == _calibration_settings(args)
+    settings = _calibration_settings(args)
+    assert (settings.budget, settings.free, settings.participants) == (7, ("spread",), 5)
+    assert _calibration_settings(again) == settings
     assert (again.targets, again.out, again.population, again.accept_misses) == (
         "pilot data.csv", Path("p.toml"), "round 2.toml", True,
     )  # fmt: skip

@@ -101,7 +101,8 @@ def participant_for(
     desired = TimedTrajectory(planner.desired, task.duration)
 
     def make() -> Any:
-        params = (population or default_population()).draw_from(np.random.default_rng(seed))
+        drawn_from = default_population() if population is None else population
+        params = drawn_from.draw_from(np.random.default_rng(seed))
         # The person's own random stream, as an episode spawns it from the same seed.
         person_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[0])
         return Participant(params, task, robot, desired, person_rng, dt=dt)

@@ -131,7 +131,8 @@ class SimServer:
             from phri.sim.participant import load_population
 
             load_population(population)  # likewise a bad population file
-        self.population = population
+        # A Path is a file (the child takes a bare word such as "lab" for a shipped name).
+        self.population = str(population.absolute()) if isinstance(population, Path) else population
         self.duration = None if duration is None else check_duration(duration)
         self.task, self.seed, self.person, self.log_protocol = task, seed, person, log_protocol
         self.faults = [Fault.parse(f).spec() for f in faults]

@@ -465,13 +465,12 @@ def test_a_missing_population_file_is_a_clear_error(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_a_two_feature_task_is_corrected_on_both_features() -> None:
-    """Issue 15: table and cup tilt both learned; the person pushes down and rights the cup, and the
-    learning robot ends closer to the desired behaviour on both features than the impedance robot
-    (as the study scores cost: |Φ_k(executed) − Φ_k(desired)|). Planned on every waypoint: with the
-    original's 4 knots (the study's tasks) the plan cannot lower the cup without tilting it until
-    the tilt's weight is learned too, and a push down that tilts the deformed plan lowers that
-    weight (docs/participant.md)."""
+def test_a_two_feature_task_can_be_corrected_on_both_features() -> None:
+    """Issue 15: table and cup tilt both learned; the person pushes down and rights the cup, and for
+    this person and seed the learning robot ends closer to the desired behaviour on both features
+    than the impedance robot (as the study scores cost: |Φ_k(executed) − Φ_k(desired)|), planned on
+    every waypoint. Not for everyone: the tilt is learned in 16 of 24 such episodes, 9 of 24 with the
+    study's 4 knots, because a push down deforms the plan towards a tilted cup (docs/participant.md)."""
     from phri.sim import EpisodeConfig, World
     from phri.sim.episode import simulate_episode
 

@@ -354,6 +354,17 @@ def test_the_default_population_ships_documents_itself_and_is_the_typical_person
         load_population("defualt")
 
 
+def test_the_default_populations_people_push_and_react_at_human_levels() -> None:
+    """A calibration is free to move the push levels and timing; it must not leave human ranges: the
+    1st to 99th percentile of 2000 people within what a person can push a robot's hand with (a few N
+    to tens of N, a twist of a few N·m) and react in (a visuomotor delay of 0.05-1 s)."""
+    pop = default_population()
+    people = [pop.draw(0, p) for p in range(1, 2001)]
+    for name, low, high in [("max_force", 2.0, 60.0), ("max_torque", 0.3, 10.0), ("delay", 0.05, 1.0)]:
+        p1, p99 = np.percentile([getattr(person, name) for person in people], [1, 99])
+        assert low <= p1 and p99 <= high, (name, p1, p99)
+
+
 def test_people_are_drawn_by_key_so_the_same_seed_is_the_same_person() -> None:
     pop = default_population()
     assert pop.draw(0, 1) == pop.draw(0, 1)

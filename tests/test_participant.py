@@ -46,6 +46,14 @@ def moved(robot: phri.Robot, q: np.ndarray, twist: np.ndarray) -> np.ndarray:
     return q + np.linalg.pinv(jacobian) @ twist
 
 
+def righting_axis(q: np.ndarray) -> np.ndarray:
+    """The unit axis about which the cup at `q` turns towards upright (its axis, link_7's x, onto
+    the vertical); the tests tilt the cup about minus it."""
+    upright = JACO2.frame_pose(JACO2.feature_frame, q)[:3, 0]
+    axis = np.cross(upright, [0.0, 0.0, 1.0])
+    return axis / np.linalg.norm(axis)
+
+
 # -- perception -----------------------------------------------------------------------------------------
 
 
@@ -76,9 +84,7 @@ def test_a_tilted_cup_is_righted_by_a_twist(desired) -> None:
     view = TaskView(phri.load_task("coffee"), JACO2, desired["coffee"])
     q = desired["coffee"][12]
     view.look(q)
-    upright = JACO2.frame_pose(JACO2.feature_frame, q)[:3, 0]
-    axis = np.cross(upright, [0.0, 0.0, 1.0])
-    axis /= np.linalg.norm(axis)
+    axis = righting_axis(q)
     (c,) = view.look(moved(JACO2, q, np.concatenate([np.zeros(3), -0.3 * axis])))  # tilted 0.3 rad
     assert c.value > c.desired
     assert c.translation < 1e-6 and 0.1 < c.rotation < 0.6
@@ -246,9 +252,7 @@ def test_an_error_is_pushed_only_once_it_is_visible(desired, over: float) -> Non
     assert person.wrench(0.0, q) is None
     assert (person.wrench(0.01, high) is not None) is (over > 1.0)
     q = desired["coffee"][12]
-    upright = JACO2.frame_pose(JACO2.feature_frame, q)[:3, 0]
-    axis = np.cross(upright, [0.0, 0.0, 1.0])
-    axis /= np.linalg.norm(axis)
+    axis = righting_axis(q)
     tilted = moved(JACO2, q, np.concatenate([np.zeros(3), -over * params.tilt_tolerance * axis]))
     person = Participant(params, coffee, JACO2, desired["coffee"], np.random.default_rng(0))
     assert person.wrench(0.0, q) is None
@@ -292,9 +296,7 @@ def test_two_features_are_corrected_at_once(desired) -> None:
         np.random.default_rng(0),
     )
     person.wrench(0.0, q)
-    upright = JACO2.frame_pose(JACO2.feature_frame, q)[:3, 0]
-    axis = np.cross(upright, [0.0, 0.0, 1.0])
-    axis /= np.linalg.norm(axis)
+    axis = righting_axis(q)
     wrong = moved(JACO2, q, np.concatenate([[0.0, 0.0, 0.1], -0.4 * axis]))
     force, torque = person.wrench(0.01, wrong)
     assert force[2] < -1.0, "the person did not push the cup down"

@@ -99,9 +99,9 @@ def participant_for(
     # The planner reads only the world's model; the scene server has no PyBullet world.
     planner = Planner(task, cast(World, SimpleNamespace(model=robot)))
     desired = TimedTrajectory(planner.desired, task.duration)
+    drawn_from = default_population() if population is None else population
 
     def make() -> Any:
-        drawn_from = default_population() if population is None else population
         params = drawn_from.draw_from(np.random.default_rng(seed))
         # The person's own random stream, as an episode spawns it from the same seed.
         person_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[0])
@@ -560,8 +560,8 @@ def serve(
     closes; `realtime` slows the simulation down (2: each 1 ms tick takes 2 ms of wall time). Faults
     come from the schedule `faults` and, one per line, from `control` (the control channel; None:
     none). The participant is drawn from `population` (None: phri's default). A closed control
-    channel means its writer is gone (a SimServer's process killed without
-    stopping its server): the server stops rather than run on, orphaned."""
+    channel means its writer is gone (a SimServer's process killed without stopping its server): the
+    server stops rather than run on, orphaned."""
     report = report or _log
     channel: queue.SimpleQueue[Fault] = queue.SimpleQueue()
     closed = threading.Event()

@@ -98,10 +98,10 @@ class SimServer:
     (1: real time; 2: each 1 ms tick takes 2 ms of wall time, for loaded machines). `task` (an FR3
     task name or file; None: the bare FR3) brings its scene and the participant seeded `seed`, drawn
     from `population` (a population file or shipped name; None: phri's default; `person=False`: the
-    scene without them); `duration` [s] overrides the task's (the person's
-    desired behaviour is the plan for it, so a client running the task shortened must shorten it
-    here too); `faults` is a schedule (``KIND[:ARG][@T]`` strings, see :mod:`phri.franka.faults`),
-    and :meth:`inject` sends one through the control channel.
+    scene without them); `duration` [s] overrides the task's (the person's desired behaviour is the
+    plan for it, so a client running the task shortened must shorten it here too); `faults` is a
+    schedule (``KIND[:ARG][@T]`` strings, see :mod:`phri.franka.faults`), and :meth:`inject` sends
+    one through the control channel.
 
     Use as a context manager: the process is started, waited for until its port answers, and always
     killed at the end."""
@@ -150,7 +150,7 @@ class SimServer:
         if self.duration is not None:
             command += ["--duration", repr(self.duration)]
         if self.population is not None:
-            command += ["--population", str(self.population)]
+            command += ["--population", self.population]
         if not self.person:
             command.append("--no-person")
         if self.log_protocol:

@@ -484,7 +484,7 @@ def test_a_two_feature_task_can_be_corrected_on_both_features() -> None:
     than the impedance robot (as the study scores cost: |Φ_k(executed) − Φ_k(desired)|), planned on
     every waypoint. Not for everyone: of 8 people × 3 seeds, the tilt ends closer in 14 of the 18
     pairs that ran to the end (6 ended in a safety stop), and in 9 of 24 with the study's 4 knots
-    (docs/participant.md)."""
+    (benches/two_features.py; docs/participant.md, "Two features at once")."""
     from phri.sim import EpisodeConfig, World
     from phri.sim.episode import simulate_episode
 

@@ -23,7 +23,7 @@ from phri.sim import (
     WorldParams,
     run_episode,
 )
-from phri.sim.episode import encode_log, simulate_episode
+from phri.sim.episode import encode_log, make_learner, simulate_episode
 from phri.sim.participant import default_population
 from phri.sim.world import HAND
 
@@ -396,6 +396,28 @@ def test_the_detectors_thresholds_and_bias_are_configurable(world) -> None:
     assert EpisodeConfig(thresholds=np.array(LATER_THRESHOLDS)).thresholds == LATER_THRESHOLDS
 
 
+def test_the_deformation_gain_reaches_the_learner(world) -> None:
+    """EpisodeConfig.deformation_gain is the learner's μ: the same push at a tenth of the default
+    gain changes the features a tenth as much (to first order; the table feature is near linear
+    over so small a deformation), and the default is phri.Deformation's."""
+    task = phri.load_task("table")
+    planner = Planner(task, world)
+    push = np.array([20.0, 20.0, 20.0, 5.0, 3.0, 3.0, 3.0])  # above every study threshold
+
+    def delta_phi(gain: float | None) -> np.ndarray:
+        config = EpisodeConfig(deformation_gain=gain)
+        learner = make_learner(task, planner, config, ORIGINAL_THRESHOLDS, replan_latency=0.0)
+        learner.observe(1.0, push)
+        (change,) = learner.history().delta_phi
+        return change
+
+    default = delta_phi(None)
+    np.testing.assert_array_equal(default, delta_phi(phri.Deformation().mu))
+    k = task.task_index
+    assert abs(default[k]) > 1e-3
+    assert delta_phi(0.1 * phri.Deformation().mu)[k] == pytest.approx(0.1 * default[k], rel=0.05)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -414,6 +436,14 @@ def test_the_detectors_thresholds_and_bias_are_configurable(world) -> None:
 def test_bad_per_joint_settings_are_a_clear_error(kwargs, match) -> None:
     with pytest.raises(InvalidParameterError, match=match):
         EpisodeConfig(**kwargs)
+
+
+@pytest.mark.parametrize("gain", [0.0, -0.01, float("nan"), float("inf"), True, "0.01"])
+def test_a_bad_deformation_gain_is_a_clear_error(gain) -> None:
+    with pytest.raises(
+        InvalidParameterError, match=r"^deformation_gain must be None or a finite gain > 0 rad per N·m, got "
+    ):
+        EpisodeConfig(deformation_gain=gain)
 
 
 def test_rates_must_be_a_whole_number_of_simulator_steps(world) -> None:

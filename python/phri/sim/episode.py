@@ -134,6 +134,11 @@ class EpisodeConfig:
     #: spinning saves the worker's wake-up at each push (tens of µs on an idle real-time kernel, up
     #: to milliseconds on a loaded machine) for one CPU core kept busy: only with a core to spare.
     worker_spin: float = 0.0
+    #: The deformation gain μ of the learner's intended trajectory, ξ_H = ξ_R + μ·A⁻¹·U_H (paper
+    #: eq. 7) [rad per N·m]; None: :class:`phri.Deformation`'s default, the original code's 0.01.
+    #: The weight update's first-order step is the task's ``step`` × μ, so scaling μ by s and the
+    #: steps by 1/s changes only how far from first order ΔΦ is (docs/participant.md, two features).
+    deformation_gain: float | None = None
 
     def __post_init__(self) -> None:
         def fail(key: str, expected: str, got: Any, show: Any = str) -> Exception:
@@ -170,6 +175,11 @@ class EpisodeConfig:
             raise fail(
                 "worker_spin", "a time >= 0 s (0: the worker sleeps at once; inf: never)", self.worker_spin
             )
+        gain = self.deformation_gain
+        if gain is not None and not (
+            isinstance(gain, (int, float)) and not isinstance(gain, bool) and math.isfinite(gain) and gain > 0
+        ):
+            raise fail("deformation_gain", "None or a finite gain > 0 rad per N·m", gain, repr)
         for key, positive in (("sensor_bias", False), ("thresholds", True), ("detector_bias", False)):
             value = getattr(self, key)
             if value is not None:
@@ -357,8 +367,11 @@ def make_learner(
     detector = InteractionDetector(
         list(thresholds), None if config.detector_bias is None else config.detector_bias
     )
+    deformation = (
+        Deformation() if config.deformation_gain is None else Deformation(mu=config.deformation_gain)
+    )
     return Learner(
-        planner.features, Deformation(), update, detector, optimizer or planner.optimizer,
+        planner.features, deformation, update, detector, optimizer or planner.optimizer,
         task.vector("initial"), task.start, task.goal,
         duration=task.duration, sample_period=1.0 / config.sample_rate,
         learning=config.strategy == "learning", transition_speed=config.transition_speed,

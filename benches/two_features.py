@@ -1,0 +1,175 @@
+"""The two-feature task: the study's table task with the cup's tilt (the coffee task's feature) also
+learned. Does the learning robot end closer to the desired behaviour than the impedance robot on
+both features? The measurements of docs/participant.md ("Two features at once") come from here.
+
+The default population's first --people people (``draw(0, p)``, p = 1, 2, ...) × episode seeds
+1..--seeds, each once with impedance and once learning, the way ``phri study`` runs them. Each
+episode is scored as the study scores cost: |Φ_k(executed) − Φ_k(desired)| per feature, the
+executed path read at the plan's waypoint times. A pair in which either episode ended in a safety
+stop is left out and counted. Printed: the pairs kept, in how many learning ends closer on the
+height, on the tilt and on both, the mean errors, and in how many learning episodes the tilt's
+weight ended below 0.05.
+
+--decompose adds where the tilt's weight comes from. At each interaction sample of the learning
+episodes the learner deformed the plan it followed by the joint torques it measured, U_H (paper eq.
+7, phri.Deformation). Those torques are split into the push's force and its torque at the hand, the
+least-squares wrench ŵ with Jᵀŵ ≈ U_H (J at the arm's configuration then; the rest, the redundant
+joint's share, is left over), and each part deforms the plan. Summed over samples: the tilt
+feature's change to first order (Σ_i ∇Φ(ξ_i)·Δξ_i, which adds up over the parts) and, for U_H
+itself, as the learner computed it (Φ(ξ_H) − Φ(ξ_R)). The update lowers the tilt's cost weight by
+step × that change, so a positive change unlearns the tilt (a sum over samples, not the weight's
+net change: the weight stops at its bounds).
+
+--precise: people who push exactly where they mean to (off_axis = 0) without tremor (noise = 0).
+--deformation-gain MU: the learner's μ (EpisodeConfig.deformation_gain), with the learned features'
+steps scaled by phri.Deformation().mu / MU so that the update's first-order step is unchanged.
+
+Usage: python benches/two_features.py [--knots 4] [--rule all] [--people 8] [--seeds 3]
+       [--precise] [--deformation-gain MU] [--decompose]      (about a minute per 48 episodes)
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import numpy as np
+
+import phri
+from phri.config import Task
+from phri.sim import EpisodeConfig, World
+from phri.sim.episode import Planner, simulate_episode
+from phri.sim.participant import default_population
+from phri.sim.world import HAND
+
+#: A learning episode's tilt weight below this counts as not learned.
+UNLEARNED = 0.05
+#: Tilt weights of the plans whose tilt error is printed (the other weights the true ones).
+PLAN_TILT_WEIGHTS = (0.0, 0.4)
+
+
+def two_feature_task(knots: int, step_scale: float = 1.0, *, tilt_only: bool = False) -> Task:
+    """The table task with the coffee task's tilt feature added (true weight 1, learned from 0), or
+    with `tilt_only` the coffee task itself, planned by `knots` knots (0: every waypoint); learned
+    features' steps × `step_scale`."""
+    table, coffee = phri.load_task("table"), phri.load_task("coffee")
+    base, features = (
+        (coffee, coffee.features)
+        if tilt_only
+        else (table, (*table.features, coffee.features[coffee.feature_names.index("coffee")]))
+    )
+    features = tuple(dataclasses.replace(f, step=f.step * step_scale) if f.learned else f for f in features)
+    name = base.name if tilt_only else "table_coffee"
+    return dataclasses.replace(base, name=name, features=features, knots=knots)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--knots", type=int, default=4, help="plan by this many knots (0: every waypoint)")
+    parser.add_argument("--rule", default="all", choices=("all", "max", "confidence"))
+    parser.add_argument("--people", type=int, default=8)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--precise", action="store_true", help="off_axis = 0 and noise = 0")
+    parser.add_argument("--deformation-gain", type=float, default=None, metavar="MU")
+    parser.add_argument("--decompose", action="store_true")
+    parser.add_argument("--tilt-only", action="store_true", help="the coffee task: the tilt learned alone")
+    args = parser.parse_args()
+
+    default_mu = phri.Deformation().mu
+    mu = args.deformation_gain or default_mu
+    task = two_feature_task(args.knots, default_mu / mu, tilt_only=args.tilt_only)
+    #: The features scored, by their names here; the tilt is the coffee task's feature.
+    scored = {"tilt": task.feature_names.index("coffee")}
+    if not args.tilt_only:
+        scored = {"height": task.feature_names.index("table"), **scored}
+    tilt_k = scored["tilt"]
+    deformation = phri.Deformation(mu=mu)
+    kept, stopped, unlearned, learned_episodes = [], [], 0, 0
+    decomposition = np.zeros((3, 2))  # rows: force, torque, U_H; columns: first order, as computed
+    with World() as world:
+        planner = Planner(task, world)
+        features, model = planner.features, world.model
+        desired = features.phi(planner.desired)
+        if not args.tilt_only:  # what learning the height without the tilt does to the plan
+            for tilt_weight in PLAN_TILT_WEIGHTS:
+                weights = task.vector("true")
+                weights[tilt_k] = tilt_weight
+                plan = planner.optimizer.solve(weights, task.start, task.goal)[0]
+                change = abs(features.phi(plan)[tilt_k] - desired[tilt_k])
+                print(f"plan for the true weights but a tilt weight of {tilt_weight}: |Δ tilt| {change:.2f}")
+        for p in range(1, args.people + 1):
+            person = default_population().draw(0, p)
+            if args.precise:
+                person = dataclasses.replace(person, off_axis=0.0, noise=0.0)
+            for seed in range(1, args.seeds + 1):
+                off, any_stop = {}, False
+                for strategy in ("impedance", "learning"):
+                    config = EpisodeConfig(
+                        strategy=strategy, rule=args.rule, deformation_gain=args.deformation_gain
+                    )
+                    result, error = simulate_episode(task, world, person, config, seed=seed, planner=planner)
+                    any_stop = any_stop or error is not None
+                    log = result.log_arrays
+                    q = log["q"]
+                    times = np.linspace(0, task.duration, task.waypoints)
+                    rows = np.minimum(np.round(times * config.log_rate).astype(int), len(q) - 1)
+                    phi = features.phi(q[rows])
+                    off[strategy] = np.abs(phi - desired)[list(scored.values())]
+                    if strategy == "learning" and error is None:
+                        learned_episodes += 1
+                        unlearned += result.final_weights[tilt_k] < UNLEARNED
+                        if args.decompose:
+                            decomposition += _decompose(task, log, features, model, deformation, tilt_k)
+                if any_stop:
+                    stopped.append((p, seed))
+                else:
+                    kept.append((off["impedance"], off["learning"]))
+    impedance = np.array([i for i, _ in kept])
+    learning = np.array([after for _, after in kept])
+    closer = learning < impedance
+    print(
+        f"{task.name} ({' + '.join(scored)} learned), knots={args.knots}, rule={args.rule}, μ={mu:g}"
+        f"{', precise people' if args.precise else ''}: {args.people} people × {args.seeds} seeds"
+    )
+    print(f"pairs kept {len(kept)}, ended in a safety stop {len(stopped)}: {stopped}")
+    both = f", on every one in {np.all(closer, axis=1).sum()}" if len(scored) > 1 else ""
+    closer_on = ", ".join(f"on the {name} in {closer[:, j].sum()}" for j, name in enumerate(scored))
+    print(f"learning closer {closer_on}{both}, of {len(kept)}")
+    errors = ", ".join(
+        f"{name} {impedance[:, j].mean():.2f} -> {learning[:, j].mean():.2f}" for j, name in enumerate(scored)
+    )
+    print(f"mean error, impedance -> learning: {errors}")
+    print(f"tilt weight below {UNLEARNED} at the end of {unlearned} of {learned_episodes} learning episodes")
+    if args.decompose:
+        force, torque, whole = decomposition
+        print(
+            "tilt change from the pushes' deformations (positive: unlearns the tilt): to first order, "
+            f"the force's {force[0]:.2f}, the torque's {torque[0]:.2f}, all measured torques' {whole[0]:.2f}"
+            f" (computed: {whole[1]:.2f})"
+        )
+
+
+def _decompose(task, log, features, model, deformation, k) -> np.ndarray:
+    """Σ over the episode's interaction samples of feature `k`'s change from deforming the followed
+    plan by the measured torques' force part, their torque part and the torques themselves:
+    [first order, computed] per row (computed for the last row only)."""
+    out = np.zeros((3, 2))
+    n = task.waypoints
+    spacing = task.duration / (n - 1)
+    for t, u_h in zip(log["interaction_t"], log["interaction_u_h"], strict=True):
+        plan = log["plans"][max(int(np.searchsorted(log["plan_t"], t, side="right")) - 1, 0)]
+        index = min(int(np.ceil(t / spacing - 1e-9)), n - 1)
+        q = log["q"][min(int(np.searchsorted(log["t"], t)), len(log["t"]) - 1)]
+        jacobian = model.jacobian(HAND, q)
+        wrench = np.linalg.solve(jacobian @ jacobian.T, jacobian @ u_h)
+        phi, gradient = features.phi_gradient(plan)
+        parts = (jacobian[:3].T @ wrench[:3], jacobian[3:].T @ wrench[3:], u_h)
+        for row, torques in enumerate(parts):
+            deformed = deformation.deform(plan, index, torques)
+            out[row, 0] += np.einsum("ij,ij->", gradient[k], deformed - plan)
+        out[2, 1] += features.phi(deformed)[k] - phi[k]
+    return out
+
+
+if __name__ == "__main__":
+    main()

@@ -12,13 +12,14 @@ weight ended below 0.05.
 
 --decompose adds where the tilt's weight comes from. At each interaction sample of the learning
 episodes the learner deformed the plan it followed by the joint torques it measured, U_H (paper eq.
-7, phri.Deformation). Those torques are split into the push's force and its torque at the hand, the
-least-squares wrench ŵ with Jᵀŵ ≈ U_H (J at the arm's configuration then; the rest, the redundant
-joint's share, is left over), and each part deforms the plan. Summed over samples: the tilt
-feature's change to first order (Σ_i ∇Φ(ξ_i)·Δξ_i, which adds up over the parts) and, for U_H
-itself, as the learner computed it (Φ(ξ_H) − Φ(ξ_R)). The update lowers the tilt's cost weight by
-step × that change, so a positive change unlearns the tilt (a sum over samples, not the weight's
-net change: the weight stops at its bounds).
+7, phri.Deformation), and moved the tilt's cost weight by −step × the tilt's change ΔΦ. Those
+torques are split into the push's force and its torque at the hand, the least-squares wrench ŵ with
+Jᵀŵ ≈ U_H (J at the arm's configuration then; the rest, the redundant joint's share, is left
+over), and each part deforms the plan last adopted (the one the learner tracks, but while it
+blends into it). Summed over samples: the tilt's change to first order (Σ_i ∇Φ(ξ_i)·Δξ_i, which
+adds up over the parts), and ΔΦ as the learner computed it (its log's ``interaction_delta_phi``).
+Positive sums pull the tilt's weight down; they are not its net change, since the weight stops at
+its bounds.
 
 --precise: people who push exactly where they mean to (off_axis = 0) without tremor (noise = 0).
 --deformation-gain MU: the learner's μ (EpisodeConfig.deformation_gain), with the learned features'
@@ -38,7 +39,7 @@ import numpy as np
 import phri
 from phri.config import Task
 from phri.sim import EpisodeConfig, World
-from phri.sim.episode import Planner, simulate_episode
+from phri.sim.episode import Planner, _nearest_rows, simulate_episode
 from phri.sim.participant import default_population
 from phri.sim.world import HAND
 
@@ -76,7 +77,7 @@ def main() -> None:
     args = parser.parse_args()
 
     default_mu = phri.Deformation().mu
-    mu = args.deformation_gain or default_mu
+    mu = default_mu if args.deformation_gain is None else args.deformation_gain
     task = two_feature_task(args.knots, default_mu / mu, tilt_only=args.tilt_only)
     #: The features scored, by their names here; the tilt is the coffee task's feature.
     scored = {"tilt": task.feature_names.index("coffee")}
@@ -84,8 +85,8 @@ def main() -> None:
         scored = {"height": task.feature_names.index("table"), **scored}
     tilt_k = scored["tilt"]
     deformation = phri.Deformation(mu=mu)
-    kept, stopped, unlearned, learned_episodes = [], [], 0, 0
-    decomposition = np.zeros((3, 2))  # rows: force, torque, U_H; columns: first order, as computed
+    kept, stopped, reasons, unlearned, learned_episodes = [], [], [], 0, 0
+    decomposition = np.zeros(4)  # first order: force, torque, U_H; the learner's ΔΦ
     with World() as world:
         planner = Planner(task, world)
         features, model = planner.features, world.model
@@ -108,12 +109,13 @@ def main() -> None:
                         strategy=strategy, rule=args.rule, deformation_gain=args.deformation_gain
                     )
                     result, error = simulate_episode(task, world, person, config, seed=seed, planner=planner)
-                    any_stop = any_stop or error is not None
+                    if error is not None:
+                        any_stop = True
+                        reasons.append(f"person {p}, seed {seed}, {strategy}: {str(error)[:100]}")
                     log = result.log_arrays
-                    q = log["q"]
-                    times = np.linspace(0, task.duration, task.waypoints)
-                    rows = np.minimum(np.round(times * config.log_rate).astype(int), len(q) - 1)
-                    phi = features.phi(q[rows])
+                    # As the study scores it: the log rows nearest the plan's waypoint times.
+                    rows = _nearest_rows(log["t"], np.linspace(0, task.duration, task.waypoints))
+                    phi = features.phi(log["q"][rows])
                     off[strategy] = np.abs(phi - desired)[list(scored.values())]
                     if strategy == "learning" and error is None:
                         learned_episodes += 1
@@ -132,6 +134,8 @@ def main() -> None:
         f"{', precise people' if args.precise else ''}: {args.people} people × {args.seeds} seeds"
     )
     print(f"pairs kept {len(kept)}, ended in a safety stop {len(stopped)}: {stopped}")
+    for reason in reasons:
+        print(f"  {reason}")
     both = f", on every one in {np.all(closer, axis=1).sum()}" if len(scored) > 1 else ""
     closer_on = ", ".join(f"on the {name} in {closer[:, j].sum()}" for j, name in enumerate(scored))
     print(f"learning closer {closer_on}{both}, of {len(kept)}")
@@ -141,33 +145,35 @@ def main() -> None:
     print(f"mean error, impedance -> learning: {errors}")
     print(f"tilt weight below {UNLEARNED} at the end of {unlearned} of {learned_episodes} learning episodes")
     if args.decompose:
-        force, torque, whole = decomposition
+        force, torque, whole, learner = decomposition
         print(
-            "tilt change from the pushes' deformations (positive: unlearns the tilt): to first order, "
-            f"the force's {force[0]:.2f}, the torque's {torque[0]:.2f}, all measured torques' {whole[0]:.2f}"
-            f" (computed: {whole[1]:.2f})"
+            "tilt change from the pushes' deformations (positive: pulls the tilt's weight down): to first "
+            f"order, the force's {force:.2f}, the torque's {torque:.2f}, all measured torques' {whole:.2f};"
+            f" the learner's ΔΦ {learner:.2f}"
         )
 
 
 def _decompose(task, log, features, model, deformation, k) -> np.ndarray:
-    """Σ over the episode's interaction samples of feature `k`'s change from deforming the followed
-    plan by the measured torques' force part, their torque part and the torques themselves:
-    [first order, computed] per row (computed for the last row only)."""
-    out = np.zeros((3, 2))
+    """Σ over the episode's interaction samples of feature `k`'s first-order change from deforming
+    the plan by the measured torques' force part, their torque part and the torques themselves, and
+    the learner's own ΔΦ_k: [force, torque, all, learner's]."""
+    out = np.zeros(4)
     n = task.waypoints
     spacing = task.duration / (n - 1)
-    for t, u_h in zip(log["interaction_t"], log["interaction_u_h"], strict=True):
+    samples = zip(log["interaction_t"], log["interaction_u_h"], log["interaction_delta_phi"], strict=True)
+    for t, u_h, delta_phi in samples:
+        if np.isnan(delta_phi[k]):  # nothing deformed (the window ran past the goal)
+            continue
         plan = log["plans"][max(int(np.searchsorted(log["plan_t"], t, side="right")) - 1, 0)]
-        index = min(int(np.ceil(t / spacing - 1e-9)), n - 1)
-        q = log["q"][min(int(np.searchsorted(log["t"], t)), len(log["t"]) - 1)]
+        index = min(int(t / spacing + 1e-9), n - 1)  # the learner's waypoint: the one at or before t
+        q = log["q"][_nearest_rows(log["t"], np.array([t]))[0]]
         jacobian = model.jacobian(HAND, q)
         wrench = np.linalg.solve(jacobian @ jacobian.T, jacobian @ u_h)
-        phi, gradient = features.phi_gradient(plan)
+        gradient = features.phi_gradient(plan)[1][k]
         parts = (jacobian[:3].T @ wrench[:3], jacobian[3:].T @ wrench[3:], u_h)
         for row, torques in enumerate(parts):
-            deformed = deformation.deform(plan, index, torques)
-            out[row, 0] += np.einsum("ij,ij->", gradient[k], deformed - plan)
-        out[2, 1] += features.phi(deformed)[k] - phi[k]
+            out[row] += np.einsum("ij,ij->", gradient, deformation.deform(plan, index, torques) - plan)
+        out[3] += delta_phi[k]
     return out
 
 

@@ -176,6 +176,7 @@ def test_episodes_are_deterministic_and_logs_are_never_overwritten(world, planne
             "push",
             "weights",
             "weights_t",
+            "interaction_delta_phi",
             "plans",
             "plan_t",
             "desired",

@@ -612,12 +612,15 @@ def _simulate(
 
 
 def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndarray]:
-    """The learner's history as log arrays: each interaction sample's time [s] and measured torque
-    [N·m], the weights after each (from t = 0, the initial weights), and each replan's time and plan."""
+    """The learner's history as log arrays: each interaction sample's time [s], measured torque
+    [N·m] and feature change ΔΦ = Φ(ξ_H) − Φ(ξ_R) (the update's input; NaN where no deformation
+    was made: under impedance, or past the deformation's last window), the weights after each (from
+    t = 0, the initial weights), and each replan's time and plan."""
     history = learner.history()
     return {
         "interaction_t": history.t,
         "interaction_u_h": history.u_h,
+        "interaction_delta_phi": history.delta_phi,
         "weights_t": np.concatenate([[0.0], history.t]),
         "weights": np.vstack([initial_weights, history.weights]),
         "plan_t": history.plan_t,

@@ -478,6 +478,31 @@ def test_a_missing_population_file_is_a_clear_error(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+def test_the_two_feature_bench_runs_and_decomposes(capsys, monkeypatch) -> None:
+    """benches/two_features.py on one person and seed, so the bench behind docs/participant.md's
+    two-feature measurements does not rot: it plans with the tilt weight at 0 and 0.4 (0 tilts the
+    cup far more), runs both strategies, and its decomposition's sums are numbers."""
+    import importlib.util
+    import re
+    import sys
+
+    path = Path(__file__).resolve().parents[1] / "benches" / "two_features.py"
+    spec = importlib.util.spec_from_file_location("two_features", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    monkeypatch.setattr(sys, "argv", ["two_features.py", "--people", "1", "--seeds", "1", "--decompose"])
+    bench.main()
+    out = capsys.readouterr().out
+    tilts = [float(v) for v in re.findall(r"\|Δ tilt\| ([0-9.]+)", out)]
+    assert len(tilts) == 2 and tilts[0] > 5 * tilts[1], out
+    assert "pairs kept 1, ended in a safety stop 0" in out, out
+    sums = re.search(
+        r"the force's (\S+), the torque's (\S+), all measured torques' (\S+); the learner's ΔΦ (\S+)", out
+    )
+    assert sums is not None and all(math.isfinite(float(v.rstrip(";"))) for v in sums.groups()), out
+
+
 def test_a_two_feature_task_can_be_corrected_on_both_features() -> None:
     """Issue 15: table and cup tilt both learned; the person pushes down and rights the cup, and for
     this person and seed the learning robot ends closer to the desired behaviour on both features

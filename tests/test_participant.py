@@ -477,7 +477,6 @@ def test_a_missing_population_file_is_a_clear_error(tmp_path: Path) -> None:
     assert isinstance(default_population(), Population)
 
 
-@pytest.mark.slow
 def test_the_two_feature_bench_runs_and_decomposes(capsys, monkeypatch) -> None:
     """benches/two_features.py on one person and seed, so the bench behind docs/participant.md's
     two-feature measurements does not rot: it plans with the tilt weight at 0 and 0.4 (0 tilts the
@@ -503,6 +502,7 @@ def test_the_two_feature_bench_runs_and_decomposes(capsys, monkeypatch) -> None:
     assert sums is not None and all(math.isfinite(float(v.rstrip(";"))) for v in sums.groups()), out
 
 
+@pytest.mark.slow
 def test_a_two_feature_task_can_be_corrected_on_both_features() -> None:
     """Issue 15: table and cup tilt both learned; the person pushes down and rights the cup, and for
     this person and seed the learning robot ends closer to the desired behaviour on both features

@@ -112,16 +112,14 @@ def main() -> None:
                     if error is not None:
                         any_stop = True
                         reasons.append(f"person {p}, seed {seed}, {strategy}: {str(error)[:100]}")
-                    log = result.log_arrays
-                    # As the study scores it: the log rows nearest the plan's waypoint times.
-                    rows = _nearest_rows(log["t"], np.linspace(0, task.duration, task.waypoints))
-                    phi = features.phi(log["q"][rows])
-                    off[strategy] = np.abs(phi - desired)[list(scored.values())]
+                    off[strategy] = np.abs(result.phi - desired)[list(scored.values())]
                     if strategy == "learning" and error is None:
                         learned_episodes += 1
                         unlearned += result.final_weights[tilt_k] < UNLEARNED
                         if args.decompose:
-                            decomposition += _decompose(task, log, features, model, deformation, tilt_k)
+                            decomposition += _decompose(
+                                task, result.log_arrays, features, model, deformation, tilt_k
+                            )
                 if any_stop:
                     stopped.append((p, seed))
                 else:

@@ -239,6 +239,9 @@ class EpisodeResult:
     #: Executed and desired link_7 paths (N, 3) for plots.
     executed_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     desired_path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    #: Every feature's unweighted count of the executed path, sampled as `cost` is (which is its
+    #: task feature's), in the task's feature order.
+    phi: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: The episode's log in memory: the arrays a .npz log holds, under the same keys.
     log_arrays: dict[str, np.ndarray] = field(default_factory=dict)
     #: The safety stop that ended the episode early, or None (also in the log: the ``stop_*`` keys).
@@ -680,6 +683,7 @@ def score_episode(
         wall_time=0.0,
         executed_path=model.frame_pose(frame, executed)[:, :3, 3],
         desired_path=model.frame_pose(frame, planner.desired)[:, :3, 3],
+        phi=phi,
         frames=trace.frames,
         log_arrays={
             "t": trace.t[:rows], **{k: v[:rows] for k, v in trace.series.items()}, **history,

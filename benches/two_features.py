@@ -1,14 +1,16 @@
 """The two-feature task: the study's table task with the cup's tilt (the coffee task's feature) also
-learned. Does the learning robot end closer to the desired behaviour than the impedance robot on
-both features? The measurements of docs/participant.md ("Two features at once") come from here.
+learned, or with --base coffee the cup task with the table's height also learned. Does the learning
+robot end closer to the desired behaviour than the impedance robot on both features? The
+measurements of docs/participant.md ("Two features at once") come from here.
 
 The default population's first --people people (``draw(0, p)``, p = 1, 2, ...) × episode seeds
 1..--seeds, each once with impedance and once learning, the way ``phri study`` runs them. Each
 episode is scored as the study scores cost: |Φ_k(executed) − Φ_k(desired)| per feature, the
 executed path read at the plan's waypoint times. A pair in which either episode ended in a safety
-stop is left out and counted. Printed: the pairs kept, in how many learning ends closer on the
-height, on the tilt and on both, the mean errors, and in how many learning episodes the tilt's
-weight ended below 0.05.
+stop is left out and counted. Printed: the initial plan's errors (what the robot does with nobody
+touching it), the pairs kept, in how many learning ends closer on the height, on the tilt and on
+both, the mean errors, in how many episodes of each strategy every feature ends closer than the
+initial plan's, and in how many learning episodes the tilt's weight ended below 0.05.
 
 --decompose adds where the tilt's weight comes from. At each interaction sample of the learning
 episodes the learner deformed the plan it followed by the joint torques it measured, U_H (paper eq.
@@ -25,8 +27,9 @@ its bounds.
 --deformation-gain MU: the learner's μ (EpisodeConfig.deformation_gain), with the learned features'
 steps scaled by phri.Deformation().mu / MU so that the update's first-order step is unchanged.
 
-Usage: python benches/two_features.py [--knots 4] [--rule all] [--people 8] [--seeds 3]
-       [--precise] [--deformation-gain MU] [--decompose]      (about a minute per 48 episodes)
+Usage: python benches/two_features.py [--base table] [--knots 4] [--rule all] [--people 8] [--seeds 3]
+       [--precise] [--deformation-gain MU] [--decompose] [--tilt-only]
+       (one to four minutes per 48 episodes)
 """
 
 from __future__ import annotations
@@ -49,19 +52,21 @@ UNLEARNED = 0.05
 PLAN_TILT_WEIGHTS = (0.0, 0.4)
 
 
-def two_feature_task(knots: int, step_scale: float = 1.0, *, tilt_only: bool = False) -> Task:
-    """The table task with the coffee task's tilt feature added (true weight 1, learned from 0), or
-    with `tilt_only` the coffee task itself, planned by `knots` knots (0: every waypoint); learned
-    features' steps × `step_scale`."""
-    table, coffee = phri.load_task("table"), phri.load_task("coffee")
-    base, features = (
-        (coffee, coffee.features)
-        if tilt_only
-        else (table, (*table.features, coffee.features[coffee.feature_names.index("coffee")]))
-    )
+def two_feature_task(
+    knots: int, step_scale: float = 1.0, *, tilt_only: bool = False, base: str = "table"
+) -> Task:
+    """The `base` task ("table" or "coffee") with the other one's learned feature added (true weight
+    1, learned from 0; the table's height or the cup's tilt), or with `tilt_only` the coffee task
+    itself, planned by `knots` knots (0: every waypoint); learned features' steps × `step_scale`."""
+    tasks = {name: phri.load_task(name) for name in ("table", "coffee")}
+    if tilt_only:
+        task, features = tasks["coffee"], tasks["coffee"].features
+    else:
+        task, other = tasks[base], tasks["coffee" if base == "table" else "table"]
+        features = (*task.features, other.features[other.feature_names.index(other.name)])
     features = tuple(dataclasses.replace(f, step=f.step * step_scale) if f.learned else f for f in features)
-    name = base.name if tilt_only else "table_coffee"
-    return dataclasses.replace(base, name=name, features=features, knots=knots)
+    name = task.name if tilt_only else "_".join(f.name for f in features if f.learned)
+    return dataclasses.replace(task, name=name, features=features, knots=knots)
 
 
 def main() -> None:
@@ -74,11 +79,17 @@ def main() -> None:
     parser.add_argument("--deformation-gain", type=float, default=None, metavar="MU")
     parser.add_argument("--decompose", action="store_true")
     parser.add_argument("--tilt-only", action="store_true", help="the coffee task: the tilt learned alone")
+    parser.add_argument(
+        "--base",
+        default="table",
+        choices=("table", "coffee"),
+        help="the task the other's feature is added to (its start, goal and scene)",
+    )
     args = parser.parse_args()
 
     default_mu = phri.Deformation().mu
     mu = default_mu if args.deformation_gain is None else args.deformation_gain
-    task = two_feature_task(args.knots, default_mu / mu, tilt_only=args.tilt_only)
+    task = two_feature_task(args.knots, default_mu / mu, tilt_only=args.tilt_only, base=args.base)
     #: The features scored, by their names here; the tilt is the coffee task's feature.
     scored = {"tilt": task.feature_names.index("coffee")}
     if not args.tilt_only:
@@ -91,6 +102,13 @@ def main() -> None:
         planner = Planner(task, world)
         features, model = planner.features, world.model
         desired = features.phi(planner.desired)
+        # What the robot does with nobody touching it: its plan for the initial weights.
+        untouched_plan = planner.optimizer.solve(task.vector("initial"), task.start, task.goal)[0]
+        untouched = np.abs(features.phi(untouched_plan) - desired)[list(scored.values())]
+        print(
+            "the initial plan (nobody touching): "
+            + ", ".join(f"|Δ {name}| {untouched[j]:.2f}" for j, name in enumerate(scored))
+        )
         if not args.tilt_only:  # what learning the height without the tilt does to the plan
             for tilt_weight in PLAN_TILT_WEIGHTS:
                 weights = task.vector("true")
@@ -141,6 +159,11 @@ def main() -> None:
         f"{name} {impedance[:, j].mean():.2f} -> {learning[:, j].mean():.2f}" for j, name in enumerate(scored)
     )
     print(f"mean error, impedance -> learning: {errors}")
+    print(
+        "closer than the initial plan on every feature: impedance in "
+        f"{np.all(impedance < untouched, axis=1).sum()}, learning in "
+        f"{np.all(learning < untouched, axis=1).sum()}, of {len(kept)}"
+    )
     print(f"tilt weight below {UNLEARNED} at the end of {unlearned} of {learned_episodes} learning episodes")
     if args.decompose:
         force, torque, whole, learner = decomposition

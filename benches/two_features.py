@@ -63,7 +63,7 @@ def two_feature_task(
         task, features = tasks["coffee"], tasks["coffee"].features
     else:
         task, other = tasks[base], tasks["coffee" if base == "table" else "table"]
-        features = (*task.features, other.features[other.feature_names.index(other.name)])
+        features = (*task.features, other.features[other.feature_names.index(other.task_feature)])
     features = tuple(dataclasses.replace(f, step=f.step * step_scale) if f.learned else f for f in features)
     name = task.name if tilt_only else "_".join(f.name for f in features if f.learned)
     return dataclasses.replace(task, name=name, features=features, knots=knots)
@@ -86,6 +86,8 @@ def main() -> None:
         help="the task the other's feature is added to (its start, goal and scene)",
     )
     args = parser.parse_args()
+    if args.tilt_only and args.base != "table":
+        parser.error("--tilt-only is the coffee task itself: it takes no --base")
 
     default_mu = phri.Deformation().mu
     mu = default_mu if args.deformation_gain is None else args.deformation_gain

@@ -436,6 +436,26 @@ def test_a_population_file_round_trips_and_extends_another(tmp_path: Path) -> No
         ('[parameters.delay]\ndistribution = "fixed"\nvalue = 0.2\n', r"missing key 'parameters.tolerance'"),
         ('extends = "nobody"\n', r"key 'extends': population: unknown population 'nobody'"),
         ('[about]\nauthor = "me"\n', r"unknown key 'about.author'"),
+        (
+            'extends = "default"\n[about]\nstart = "max_force.median: 3"\n',
+            r"key 'about.start': 'max_force.median: 3' is not 'parameter.key = number'",
+        ),
+        (
+            'extends = "default"\n[about]\nstart = "strength.median = 3"\n',
+            r"key 'about.start': 'strength.median = 3' is not .* with a known parameter",
+        ),
+        (
+            'extends = "default"\n[about]\nstart = "max_force.median = inf"\n',
+            r"key 'about.start': 'max_force.median = inf' is not 'parameter.key = number'",
+        ),
+        (
+            'extends = "default"\n[about]\nstart = "max_force.mean = 3"\n',
+            r"about.start: key 'parameters.max_force.mean': unknown key for a lognormal distribution",
+        ),
+        (
+            'extends = "default"\n[about]\nstart = "max_force.median = -3"\n',
+            r"about.start: key 'parameters.max_force.median' must be",
+        ),
         ("parameters = [\n", "not valid TOML"),
         # Found by the fuzz suite (a TypeError and a bare ValueError before):
         (

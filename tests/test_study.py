@@ -1439,6 +1439,12 @@ def test_a_tiny_calibration(tmp_path: Path) -> None:
     about = dict(written.about)
     assert about["command"] == "phri calibrate x" and about["seed"] == 0 and "MISSES" in about["description"]
     assert written == result.population
+    # The values it started from where they differ, so the command reruns without its --population.
+    assert written.calibration_start() == result.start.population and written.calibration_start().about == ()
+    assert (about["start"] == "") == (result.population == result.start.population)
+    assert all(line.startswith("max_force.median = ") for line in about["start"].splitlines())
+    with pytest.raises(ConfigError, match="no key 'about.start'"):
+        phri.sim.participant.default_population().calibration_start()
     with pytest.raises(FileExistsError):
         write_population(result, out, command="again", accept_misses=True)
 

@@ -433,8 +433,10 @@ def write_population(
     result: CalibrationResult, out: str | Path, *, command: str, accept_misses: bool = False
 ) -> Path:
     """Writes the calibrated population to `out` (a new file: an existing one is a FileExistsError),
-    recording the command, seed, phri version, date, targets and the fit; a result that misses its
-    targets is a CalibrationError naming them, unless `accept_misses`."""
+    recording the command, seed, phri version, date, targets, the fit and the values the calibration
+    started from where they differ (``start``: :meth:`Population.calibration_start` rebuilds the
+    starting population, so the command can be rerun without the file it named); a result that
+    misses its targets is a CalibrationError naming them, unless `accept_misses`."""
     from phri import __version__
 
     if not result.reached and not accept_misses:
@@ -454,6 +456,7 @@ def write_population(
         "date": time.strftime("%Y-%m-%d", time.gmtime()),
         "targets": result.targets.source,
         "fit": result.table(),
+        "start": _start_text(result.start.population, result.population),
     }
     population = Population(result.population.distributions, str(out), tuple(about.items()))
     text = (
@@ -461,3 +464,15 @@ def write_population(
         + population.to_toml()
     )
     return write_atomic(Path(out), text.encode("utf-8"), overwrite=False)
+
+
+def _start_text(start: Population, fitted: Population) -> str:
+    """``parameter.key = value`` lines for each of `start`'s values that `fitted` changed (empty if
+    none: the calibration kept its start)."""
+    lines = []
+    for (name, before), (_, after) in zip(start.distributions, fitted.distributions, strict=True):
+        after_values = dict(after.values)
+        for key, value in before.values:
+            if after_values.get(key) != value:
+                lines.append(f"{name}.{key} = {value!r}")
+    return "\n".join(lines)

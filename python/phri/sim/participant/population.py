@@ -19,7 +19,10 @@ Distributions: ``fixed`` (value), ``lognormal`` (median, sigma), ``normal`` (mea
 "default"`` (a shipped population's name or a path relative to the file) takes the parameters the
 file does not give from that population; without it every parameter must be given. An optional
 ``[about]`` table records where the population came from (``description``, ``command``, ``seed``,
-``phri_version``, ``date``, ``targets``, ``fit``).
+``phri_version``, ``date``, ``targets``, ``fit``, and for a calibrated population ``start``: one
+``parameter.key = value`` line for each value its calibration started from where this population's
+differs, so :meth:`Population.calibration_start` rebuilds the starting population and the recorded
+command can be run again without the file it named).
 
 Drawing is keyed, not sequential: participant p of a study with seed s gets, for each parameter, a
 uniform number from ``SeedSequence(s, spawn_key=(0, p, crc32(name)))`` and the parameter is that
@@ -65,7 +68,7 @@ DISTRIBUTIONS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "normal": (("mean", "sd"), ("min", "max")),
     "uniform": (("low", "high"), ()),
 }
-ABOUT_KEYS = ("description", "command", "seed", "phri_version", "date", "targets", "fit")
+ABOUT_KEYS = ("description", "command", "seed", "phri_version", "date", "targets", "fit", "start")
 TOP_KEYS = ("about", "extends", "parameters")
 #: The keyed draws' spawn-key prefix (the study's participant key).
 PARTICIPANT_KEY = 0
@@ -168,6 +171,17 @@ class Population:
             data["parameters"][name][key] = float(value)
         return Population.from_dict(data, source or self.source)
 
+    def calibration_start(self) -> Population:
+        """The population its calibration started from: this one with the ``[about]`` table's
+        ``start`` values put back (without provenance). Save it with :meth:`to_toml` and pass it as
+        the recorded command's ``--population`` to run that calibration again. A ConfigError if this
+        population records no ``start``."""
+        about = dict(self.about)
+        if "start" not in about:
+            raise ConfigError(f"{self.source}: no key 'about.start': not written by phri calibrate")
+        bare = Population(self.distributions, self.source)  # replace() re-reads what to_dict() writes
+        return bare.replace(_start_values(self.source, about["start"]), f"{self.source}: about.start")
+
     def to_dict(self) -> dict[str, Any]:
         """The population as a parsed population file (``about`` if it has provenance, and
         ``parameters``): :meth:`from_dict` reads it back equal; a study keeps it in ``study.json``."""
@@ -254,7 +268,34 @@ class Population:
                     f"[{PARAMETERS[name].unit}]); give it, or take the rest from a population with "
                     'extends = "default"'
                 )
-        return cls(tuple(out), source, tuple(about.items()))
+        population = cls(tuple(out), source, tuple(about.items()))
+        if "start" in about:  # the starting values must rebuild a valid population
+            population.calibration_start()
+        return population
+
+
+def _start_values(source: str, text: Any) -> dict[tuple[str, str], float]:
+    """The ``about.start`` text's values: {(parameter, key): value}, one ``parameter.key = value``
+    per line; a ConfigError naming `source` for anything else."""
+    values: dict[tuple[str, str], float] = {}
+    if not isinstance(text, str):
+        raise ConfigError(f"{source}: key 'about.start' must be a string of 'parameter.key = value' lines")
+    for line in text.splitlines():
+        if not line.strip():
+            continue
+        name_key, sep, number = line.partition("=")
+        name, dot, key = name_key.strip().partition(".")
+        try:
+            value = float(number)
+        except ValueError:
+            value = math.nan
+        if not (sep and dot and name in PARAMETERS and key and math.isfinite(value)):
+            raise ConfigError(
+                f"{source}: key 'about.start': {line.strip()!r} is not 'parameter.key = number' "
+                "with a known parameter"
+            )
+        values[(name, key)] = value
+    return values
 
 
 def _toml_value(value: Any) -> str:

@@ -40,6 +40,7 @@ from phri.config import Task, load_task
 from phri.exceptions import InvalidParameterError, PhriError
 from phri.sim.episode import STRATEGIES, EpisodeConfig, Planner, simulate_episode
 from phri.sim.participant import PARAMETERS, Population, default_population
+from phri.sim.participant.population import start_record
 from phri.sim.world import World
 from phri.study.protocol import episode_seed
 from phri.study.targets import PooledTest, Targets, compare
@@ -142,6 +143,9 @@ class CalibrationResult:
     settings: CalibrationSettings
     targets: Targets
     history: list[float] = field(default_factory=list)
+    #: The population the search started from, as given (the first candidate clips values at their
+    #: parameters' bounds); None: :attr:`start`'s.
+    initial: Population | None = None
 
     @property
     def misses(self) -> list[dict[str, Any]]:
@@ -403,7 +407,7 @@ def calibrate(
     best = evaluated_best()
     return CalibrationResult(
         best.population, best, evaluated[0], len(evaluated), time.perf_counter() - began,
-        settings.tolerance, settings, targets, [c.loss for c in evaluated],
+        settings.tolerance, settings, targets, [c.loss for c in evaluated], start,
     )  # fmt: skip
 
 
@@ -456,7 +460,7 @@ def write_population(
         "date": time.strftime("%Y-%m-%d", time.gmtime()),
         "targets": result.targets.source,
         "fit": result.table(),
-        "start": _start_text(result.start.population, result.population),
+        "start": start_record(result.initial or result.start.population, result.population),
     }
     population = Population(result.population.distributions, str(out), tuple(about.items()))
     text = (
@@ -464,15 +468,3 @@ def write_population(
         + population.to_toml()
     )
     return write_atomic(Path(out), text.encode("utf-8"), overwrite=False)
-
-
-def _start_text(start: Population, fitted: Population) -> str:
-    """``parameter.key = value`` lines for each of `start`'s values that `fitted` changed (empty if
-    none: the calibration kept its start)."""
-    lines = []
-    for (name, before), (_, after) in zip(start.distributions, fitted.distributions, strict=True):
-        after_values = dict(after.values)
-        for key, value in before.values:
-            if after_values.get(key) != value:
-                lines.append(f"{name}.{key} = {value!r}")
-    return "\n".join(lines)

@@ -180,7 +180,7 @@ class Population:
         if "start" not in about:
             raise ConfigError(f"{self.source}: no key 'about.start': not written by phri calibrate")
         bare = Population(self.distributions, self.source)  # replace() re-reads what to_dict() writes
-        return bare.replace(_start_values(self.source, about["start"]), f"{self.source}: about.start")
+        return bare.replace(_start_values(self.source, about["start"]), f"{self.source}: key 'about.start'")
 
     def to_dict(self) -> dict[str, Any]:
         """The population as a parsed population file (``about`` if it has provenance, and
@@ -268,10 +268,22 @@ class Population:
                     f"[{PARAMETERS[name].unit}]); give it, or take the rest from a population with "
                     'extends = "default"'
                 )
-        population = cls(tuple(out), source, tuple(about.items()))
-        if "start" in about:  # the starting values must rebuild a valid population
-            population.calibration_start()
-        return population
+        if "start" in about:  # its form; whether the values fit is calibration_start()'s question
+            _start_values(source, about["start"])
+        return cls(tuple(out), source, tuple(about.items()))
+
+
+def start_record(start: Population, fitted: Population) -> str:
+    """The ``about.start`` text of `fitted`, calibrated from `start`: a ``parameter.key = value`` line
+    for each of `start`'s values that `fitted` does not have (empty if none: it kept its start);
+    :func:`_start_values` reads it back."""
+    lines = []
+    for (name, before), (_, after) in zip(start.distributions, fitted.distributions, strict=True):
+        after_values = dict(after.values)
+        for key, value in before.values:
+            if after_values.get(key) != value:
+                lines.append(f"{name}.{key} = {value!r}")
+    return "\n".join(lines)
 
 
 def _start_values(source: str, text: Any) -> dict[tuple[str, str], float]:
@@ -291,7 +303,7 @@ def _start_values(source: str, text: Any) -> dict[tuple[str, str], float]:
             value = math.nan
         if not (sep and dot and name in PARAMETERS and key and math.isfinite(value)):
             raise ConfigError(
-                f"{source}: key 'about.start': {line.strip()!r} is not 'parameter.key = number' "
+                f"{source}: key 'about.start': {line.strip()[:80]!r} is not 'parameter.key = number' "
                 "with a known parameter"
             )
         values[(name, key)] = value

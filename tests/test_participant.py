@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from types import SimpleNamespace
+from types import ModuleType, SimpleNamespace
 
 import numpy as np
 import pytest
@@ -519,20 +519,27 @@ def test_a_missing_population_file_is_a_clear_error(tmp_path: Path) -> None:
     assert isinstance(default_population(), Population)
 
 
-def test_the_two_feature_bench_runs_and_decomposes(capsys, monkeypatch) -> None:
-    """benches/two_features.py on one person and seed, so the bench behind docs/participant.md's
-    two-feature measurements does not rot: it prints the initial plan's errors, plans with the tilt
-    weight at 0 and 0.4 (0 tilts the cup far more), runs both strategies, counts the episodes closer
-    than the initial plan, and its decomposition's sums are numbers."""
+def _two_features_bench() -> ModuleType:
+    """benches/two_features.py as a module (benches are scripts, not a package)."""
     import importlib.util
-    import re
-    import sys
 
     path = Path(__file__).resolve().parents[1] / "benches" / "two_features.py"
     spec = importlib.util.spec_from_file_location("two_features", path)
     assert spec is not None and spec.loader is not None
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
+    return bench
+
+
+def test_the_two_feature_bench_runs_and_decomposes(capsys, monkeypatch) -> None:
+    """benches/two_features.py on one person and seed, so the bench behind docs/participant.md's
+    two-feature measurements does not rot: it prints the initial plan's errors, plans with the tilt
+    weight at 0 and 0.4 (0 tilts the cup far more), runs both strategies, counts the episodes closer
+    than the initial plan, and its decomposition's sums are numbers."""
+    import re
+    import sys
+
+    bench = _two_features_bench()
     monkeypatch.setattr(sys, "argv", ["two_features.py", "--people", "1", "--seeds", "1", "--decompose"])
     bench.main()
     out = capsys.readouterr().out
@@ -563,9 +570,7 @@ def test_a_two_feature_task_can_be_corrected_on_both_features() -> None:
     from phri.sim import EpisodeConfig, World
     from phri.sim.episode import simulate_episode
 
-    table, coffee = phri.load_task("table"), phri.load_task("coffee")
-    height = table.features[table.feature_names.index("table")]
-    both = dataclasses.replace(coffee, name="coffee_table", features=(*coffee.features, height), knots=0)
+    both = _two_features_bench().two_feature_task(0, base="coffee")  # the bench's task, every waypoint
     person = default_population().draw(0, 6)
     with World() as world:
         planner = Planner(both, world)

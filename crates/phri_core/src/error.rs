@@ -37,6 +37,11 @@ pub enum PhriError {
     #[error("{reason}")]
     ReplanWorker { reason: String },
 
+    /// A feature defined outside the core (e.g. in Python) failed: it raised, returned the wrong
+    /// shape or a non-finite value, or overran its time limit. Names the feature.
+    #[error("feature '{feature}': {reason}")]
+    Feature { feature: String, reason: String },
+
     /// An iterative solver stopped without meeting its tolerance.
     #[error("{what} did not converge after {iterations} iterations (residual {residual:e})")]
     NotConverged { what: String, iterations: usize, residual: f64 },

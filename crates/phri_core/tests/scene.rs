@@ -96,9 +96,8 @@ fn features_from_the_scene_match_the_authors_values() {
     let specs: Vec<FeatureSpec> = names.iter().map(|&n| feature_spec(n)).collect();
     let mut from_scene = FeatureSet::from_specs(model.clone(), frame, &specs, Some(&study_scene())).unwrap();
     // The authors' circles, evaluated directly.
-    let circle = |name: &str, x: f64, y: f64| -> Box<dyn Feature> {
-        Box::new(Keepout { name: name.into(), center: Vector2::new(x, y), radius: 0.4, samples: 4 })
-    };
+    let circle =
+        |name: &str, x: f64, y: f64| -> Box<dyn Feature> { Box::new(Keepout::cylinder(name, Vector2::new(x, y), 0.4, 4)) };
     let mut authors = FeatureSet::new(model, frame, vec![circle("laptop", -0.7929, -0.1), circle("human", 0.0, 0.2)]).unwrap();
     let (a, b) =
         (deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]), deg([210.5, 118.5, 192.5, 105.4, 229.15, 245.47, 316.4]));

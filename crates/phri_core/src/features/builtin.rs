@@ -9,8 +9,9 @@
 
 use nalgebra::Vector2;
 
-use super::{Coffee, CoffeeForm, Efficiency, Feature, Keepout, Origin, Table};
+use super::{Coffee, CoffeeForm, DeclaredSpec, Efficiency, Feature, Keepout, Origin, Table};
 use crate::error::{check_finite, PhriError, Result};
+use crate::model::RobotModel;
 use crate::scene::Scene;
 
 /// Names of the built-in features, as task files and the bindings spell them.
@@ -54,6 +55,8 @@ pub enum FeatureParams {
     Table { height: f64 },
     /// The laptop and human features.
     Keepout(KeepoutSpec),
+    /// A feature of a declared kind under its own name (see [`DeclaredSpec`]).
+    Declared(DeclaredSpec),
 }
 
 /// One feature of a set: its name and parameters.
@@ -80,6 +83,12 @@ impl FeatureSpec {
     /// Checks that the name is a built-in feature that takes these parameters, and their values
     /// (errors name `arg`, e.g. "features[2]", and the parameter).
     pub fn check(&self, arg: &str) -> Result<()> {
+        if let FeatureParams::Declared(d) = &self.params {
+            if self.name.is_empty() {
+                return Err(PhriError::invalid(arg, format!("declares a '{}' feature without a name", d.kind())));
+            }
+            return d.check(arg);
+        }
         if !BUILTIN_FEATURES.contains(&self.name.as_str()) {
             return Err(unknown_feature(arg, &self.name));
         }
@@ -88,6 +97,7 @@ impl FeatureSpec {
             FeatureParams::None => !params.contains(&"keep_out"),
             FeatureParams::Table { .. } => self.name == "table",
             FeatureParams::Keepout(_) => params.contains(&"keep_out"),
+            FeatureParams::Declared(_) => false, // returned above
         };
         if !takes {
             let message = match &self.params {
@@ -102,7 +112,7 @@ impl FeatureSpec {
             return Err(PhriError::invalid(arg, message));
         }
         match &self.params {
-            FeatureParams::None => Ok(()),
+            FeatureParams::None | FeatureParams::Declared(_) => Ok(()),
             FeatureParams::Table { height } => check_finite(&format!("{arg}.height"), &[*height]),
             FeatureParams::Keepout(k) => {
                 if !(k.radius.is_finite() && k.radius > 0.0) {
@@ -123,10 +133,11 @@ impl FeatureSpec {
         }
     }
 
-    /// The feature, its keep-out circle placed by `scene` (errors name `arg`).
-    pub fn build(&self, arg: &str, scene: Option<&Scene>) -> Result<Box<dyn Feature>> {
+    /// The feature on `model`, its keep-out circle or object placed by `scene` (errors name `arg`).
+    pub fn build(&self, arg: &str, scene: Option<&Scene>, model: &RobotModel) -> Result<Box<dyn Feature>> {
         self.check(arg)?;
         Ok(match (self.name.as_str(), &self.params) {
+            (name, FeatureParams::Declared(d)) => return d.build(name, arg, scene, model),
             ("efficiency", _) => Box::new(Efficiency),
             ("table", FeatureParams::Table { height }) => Box::new(Table { height: *height }),
             ("table", _) => Box::new(Table { height: 0.0 }),
@@ -140,7 +151,7 @@ impl FeatureSpec {
                         format!("is needed by keep-out feature '{name}' ({arg}), which keeps away from '{}'", k.keep_out),
                     )
                 })?;
-                Box::new(Keepout { name: name.into(), center: k.center(arg, scene)?, radius: k.radius, samples: k.samples })
+                Box::new(Keepout::cylinder(name, k.center(arg, scene)?, k.radius, k.samples))
             }
             (name, _) => return Err(PhriError::invalid(arg, format!("gives feature '{name}' parameters it does not take"))),
         })

@@ -14,7 +14,9 @@
 //! features. Then pass `Box::new(YourFeature)` to [`FeatureSet::new`]; the built-in features come
 //! from their specifications through [`FeatureSet::from_specs`].
 
+mod batch;
 mod builtin;
+mod declared;
 mod efficiency;
 mod keepout;
 mod orientation;
@@ -25,7 +27,9 @@ mod smoothing;
 
 use std::sync::Arc;
 
+pub use batch::{BatchFeature, BatchFunction};
 pub use builtin::{feature_parameters, FeatureParams, FeatureSpec, KeepoutSpec, BUILTIN_FEATURES, DEFAULT_SAMPLES, MAX_SAMPLES};
+pub use declared::{declared_parameters, Alignment, DeclaredSpec, Height, JointDistance, Speed, DECLARED_KINDS};
 pub use efficiency::Efficiency;
 pub use keepout::Keepout;
 pub use orientation::{Coffee, CoffeeForm};
@@ -72,6 +76,26 @@ pub trait Feature: FeatureClone + Send + Sync {
     fn resolution_exponent(&self) -> i32 {
         1
     }
+    /// Called once per evaluation, before its segments, with the whole trajectory (N × n
+    /// row-major, `n` joints) and what the evaluation asks for: a feature that computes its values
+    /// for all waypoints at once (e.g. one written in Python, see [`BatchFeature`]) does it here
+    /// and serves them from `segment`. The built-ins need nothing. An error stops the evaluation
+    /// (and the solve) and reaches the caller.
+    fn prepare(&mut self, _trajectory: &[f64], _n: usize, _need: Need) -> Result<()> {
+        Ok(())
+    }
+}
+
+/// What an evaluation asks of its features (see [`Feature::prepare`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Need {
+    /// Values only.
+    Value,
+    /// Values and gradients.
+    Gradient,
+    /// Values, gradients and second derivatives: `exact` when the caller wants the true Hessian
+    /// (see [`SegmentHessian::kinematic`]), else a convex model of it will do.
+    Hessian { exact: bool },
 }
 
 /// Where [`FeatureSet::weighted_cost_unchecked`] reports the second-order model of the cost: each
@@ -91,6 +115,9 @@ pub struct FeatureSet {
     inv_range: Vec<f64>,
     ws: Workspace,
     hessian: SegmentHessian,
+    /// The first error of a feature's [`Feature::prepare`] in an infallible (optimiser)
+    /// evaluation, until the solve takes it (see [`FeatureSet::take_failure`]).
+    failure: Option<PhriError>,
 }
 
 impl FeatureSet {
@@ -109,14 +136,17 @@ impl FeatureSet {
         }
         let nq = model.nq();
         let ws = Workspace::new(model, frame);
-        Ok(FeatureSet { inv_range: vec![1.0; features.len()], features, ws, hessian: SegmentHessian::new(nq) })
+        Ok(FeatureSet { inv_range: vec![1.0; features.len()], features, ws, hessian: SegmentHessian::new(nq), failure: None })
     }
 
     /// The built-in features of `specs` (see [`FeatureSpec`]), in order, evaluated at `frame`;
     /// keep-out features are placed by `scene` (errors name "features[i]").
     pub fn from_specs(model: Arc<RobotModel>, frame: FrameId, specs: &[FeatureSpec], scene: Option<&Scene>) -> Result<Self> {
-        let features =
-            specs.iter().enumerate().map(|(i, s)| s.build(&format!("features[{i}]"), scene)).collect::<Result<Vec<_>>>()?;
+        let features = specs
+            .iter()
+            .enumerate()
+            .map(|(i, s)| s.build(&format!("features[{i}]"), scene, &model))
+            .collect::<Result<Vec<_>>>()?;
         Self::new(model, frame, features)
     }
 
@@ -227,6 +257,7 @@ impl FeatureSet {
     pub fn phi(&mut self, trajectory: &[f64], phi: &mut [f64]) -> Result<()> {
         let waypoints = self.check_trajectory("trajectory", trajectory)?;
         self.check_out("phi", phi.len(), self.len())?;
+        self.prepare(trajectory, None, Need::Value)?;
         phi.fill(0.0);
         self.ws.begin_streaming();
         for i in 1..waypoints {
@@ -243,6 +274,7 @@ impl FeatureSet {
         let waypoints = self.check_trajectory("trajectory", trajectory)?;
         let k_len = self.len();
         self.check_out("out", out.len(), (waypoints - 1) * k_len)?;
+        self.prepare(trajectory, None, Need::Value)?;
         self.ws.begin_streaming();
         for i in 1..waypoints {
             let mut seg = self.ws.segment(trajectory, i, 0.0);
@@ -260,6 +292,7 @@ impl FeatureSet {
         let k_len = self.len();
         self.check_out("phi", phi.len(), k_len)?;
         self.check_out("jac", jac.len(), k_len * waypoints * n)?;
+        self.prepare(trajectory, None, Need::Gradient)?;
         phi.fill(0.0);
         jac.fill(0.0);
         self.ws.begin_streaming();
@@ -288,6 +321,7 @@ impl FeatureSet {
         self.check_out("weights", weights.len(), self.len())?;
         check_finite("weights", weights)?;
         self.check_out("grad", grad.len(), trajectory.len())?;
+        self.prepare(trajectory, Some(weights), Need::Gradient)?;
         self.ws.begin_streaming();
         Ok(self.weighted_cost_evaluation(trajectory, waypoints, weights, Some(grad), None, 0.0))
     }
@@ -315,6 +349,7 @@ impl FeatureSet {
             return Err(PhriError::invalid("smoothing", format!("must be finite and >= 0, got {smoothing}")));
         }
         self.set_kinematic_curvature(true);
+        self.prepare(trajectory, Some(weights), Need::Hessian { exact: true })?;
         let second_order = SecondOrder { segment_hessian: &mut segment_hessian, pieces: None };
         Ok(self.weighted_cost_unchecked(trajectory, waypoints, weights, Some(grad), Some(second_order), smoothing))
     }
@@ -332,6 +367,12 @@ impl FeatureSet {
         second_order: Option<SecondOrder<'_>>,
         smoothing: f64,
     ) -> f64 {
+        let need = match (&grad, &second_order) {
+            (_, Some(_)) => Need::Hessian { exact: self.hessian.kinematic() },
+            (Some(_), None) => Need::Gradient,
+            (None, None) => Need::Value,
+        };
+        self.prepare_unchecked(&trajectory[..waypoints * self.ws.model().nq()], Some(weights), need);
         self.ws.begin(waypoints);
         self.weighted_cost_evaluation(trajectory, waypoints, weights, grad, second_order, smoothing)
     }
@@ -340,6 +381,7 @@ impl FeatureSet {
     /// weight, into `terms` (one per feature): that cost at weights w is Σ w_k·terms[k] over the k
     /// with w_k ≠ 0 (the cost skips the features of weight 0).
     pub(crate) fn cost_terms_unchecked(&mut self, trajectory: &[f64], waypoints: usize, smoothing: f64, terms: &mut [f64]) {
+        self.prepare_unchecked(&trajectory[..waypoints * self.ws.model().nq()], None, Need::Value);
         self.ws.begin(waypoints);
         terms.fill(0.0);
         for i in 1..waypoints {
@@ -409,6 +451,35 @@ impl FeatureSet {
             }
         }
         cost
+    }
+
+    /// Runs every feature's [`Feature::prepare`] (with `weights`, only those of weight ≠ 0).
+    fn prepare(&mut self, trajectory: &[f64], weights: Option<&[f64]>, need: Need) -> Result<()> {
+        let n = self.ws.model().nq();
+        for (k, f) in self.features.iter_mut().enumerate() {
+            if weights.is_none_or(|w| w[k] * self.inv_range[k] != 0.0) {
+                f.prepare(trajectory, n, need)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// [`FeatureSet::prepare`] for the infallible evaluations: the first error is kept for the
+    /// solve to report ([`FeatureSet::take_failure`]); the failed feature contributes nothing.
+    fn prepare_unchecked(&mut self, trajectory: &[f64], weights: Option<&[f64]>, need: Need) {
+        if let Err(e) = self.prepare(trajectory, weights, need) {
+            self.failure.get_or_insert(e);
+        }
+    }
+
+    /// Whether a feature failed in an evaluation since the last [`FeatureSet::take_failure`].
+    pub(crate) fn failed(&self) -> bool {
+        self.failure.is_some()
+    }
+
+    /// The first feature error of the evaluations since the last call, if any.
+    pub(crate) fn take_failure(&mut self) -> Option<PhriError> {
+        self.failure.take()
     }
 
     /// Whether the next evaluations with a Hessian include the kinematic curvature of the features

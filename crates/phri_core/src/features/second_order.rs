@@ -76,6 +76,7 @@ pub struct SegmentHessian {
     h: Vec<f64>,
     pending: Option<f64>,
     tmp: Vec<f64>,
+    tmp2: Vec<f64>,
 }
 
 impl SegmentHessian {
@@ -89,6 +90,7 @@ impl SegmentHessian {
             h: vec![0.0; n * n],
             pending: None,
             tmp: vec![0.0; n * n],
+            tmp2: vec![0.0; n],
         }
     }
 
@@ -155,9 +157,13 @@ impl SegmentHessian {
         for r in 0..n {
             for c in 0..n {
                 let x = self.h[r * n + c];
-                self.m[(n + r) * w + n + c] += bb * x;
-                if ab != 0.0 {
+                if bb != 0.0 {
+                    self.m[(n + r) * w + n + c] += bb * x;
+                }
+                if aa != 0.0 {
                     self.m[r * w + c] += aa * x;
+                }
+                if ab != 0.0 {
                     self.m[r * w + n + c] += ab * x;
                     self.m[(n + r) * w + c] += ab * x;
                 }
@@ -181,6 +187,26 @@ impl SegmentHessian {
             }
             for c in 0..n {
                 self.h[r * n + c] += vr * self.v[c];
+            }
+        }
+    }
+
+    /// Adds `weight`·u·uᵀ with u = [a, b], a_j = `a(j)` the derivative in q_{i-1} and b_j = `b(j)`
+    /// the derivative in q_i of a quantity of the whole segment (e.g. a step p(q_i) − p(q_{i-1})).
+    pub fn add_outer_pair(&mut self, weight: f64, a: impl Fn(usize) -> f64, b: impl Fn(usize) -> f64) {
+        let (n, w) = (self.n, 2 * self.n);
+        for j in 0..n {
+            self.v[j] = a(j);
+            self.tmp2[j] = b(j);
+        }
+        for r in 0..2 * n {
+            let ur = weight * if r < n { self.v[r] } else { self.tmp2[r - n] };
+            if ur == 0.0 {
+                continue;
+            }
+            for c in 0..2 * n {
+                let uc = if c < n { self.v[c] } else { self.tmp2[c - n] };
+                self.m[r * w + c] += ur * uc;
             }
         }
     }

@@ -91,6 +91,8 @@ pub(super) struct Workspace {
     q_s: Vec<f64>,
     samples: Vec<Sample>,
     used: usize,
+    /// Jacobian of a frame other than the feature frame (see [`Segment::jacobian_of`]).
+    other_jacobian: Matrix6xX<f64>,
 }
 
 impl Workspace {
@@ -109,6 +111,7 @@ impl Workspace {
             q_s: vec![0.0; nq],
             samples: Vec::with_capacity(8),
             used: 0,
+            other_jacobian: Matrix6xX::zeros(nq),
         }
     }
 
@@ -255,6 +258,92 @@ fn reach_bounds(model: &RobotModel, frame: FrameId) -> Option<Vec<f64>> {
 }
 
 impl Segment<'_> {
+    /// Index i of the segment's end waypoint (1 ≤ i < N): the segment runs from q_{i-1} to q_i.
+    pub fn end_index(&self) -> usize {
+        self.index
+    }
+
+    /// The robot model the kinematics are of.
+    pub fn model(&self) -> &Arc<RobotModel> {
+        &self.ws.model
+    }
+
+    /// `frame` unless it is the feature frame (whose kinematics are cached).
+    fn other(&self, frame: Option<FrameId>) -> Option<FrameId> {
+        frame.filter(|f| *f != self.ws.frame)
+    }
+
+    /// Forward kinematics at q(s) (the waypoints' own for s = 0 and 1).
+    fn data_at(&mut self, s: f64) -> &RobotData {
+        let (q_prev, q) = (self.q_prev, self.q);
+        if s == 1.0 {
+            return &self.ws.waypoint(self.index, q).data;
+        }
+        if s == 0.0 {
+            return &self.ws.waypoint(self.index - 1, q_prev).data;
+        }
+        self.ws.fk_at(self.index, q_prev, q, s);
+        &self.ws.data
+    }
+
+    /// Kinematics of `frame` (None: the feature frame) at q_{i-1} + s·(q_i − q_{i-1}), s ∈ [0, 1].
+    /// Other frames are read off the same forward kinematics (computed once per waypoint and
+    /// sample) without a cache of their own.
+    pub fn point_of(&mut self, frame: Option<FrameId>, s: f64) -> Point {
+        let Some(f) = self.other(frame) else { return self.point(s) };
+        let model = self.ws.model.clone();
+        let pose = model.frame_pose(f, self.data_at(s));
+        Point { position: pose.translation.vector, rotation: *pose.rotation.matrix() }
+    }
+
+    /// World-aligned 6×n Jacobian of `frame` (None: the feature frame) at the same point as
+    /// [`Segment::point_of`]; valid until the next call for another frame.
+    pub fn jacobian_of(&mut self, frame: Option<FrameId>, s: f64) -> &Matrix6xX<f64> {
+        let Some(f) = self.other(frame) else { return self.jacobian(s) };
+        let model = self.ws.model.clone();
+        let mut jac = std::mem::replace(&mut self.ws.other_jacobian, Matrix6xX::zeros(0));
+        model.frame_jacobian_unchecked(f, self.data_at(s), &mut jac);
+        self.ws.other_jacobian = jac;
+        &self.ws.other_jacobian
+    }
+
+    /// [`Segment::travel_bound`] for `frame`'s origin (None: the feature frame).
+    pub fn travel_bound_of(&self, frame: Option<FrameId>) -> Option<f64> {
+        let Some(f) = self.other(frame) else { return self.travel_bound() };
+        let reach = reach_bounds(&self.ws.model, f)?;
+        Some(reach.iter().zip(self.q).zip(self.q_prev).map(|((r, a), b)| r * (a - b).abs()).sum())
+    }
+
+    /// [`Segment::add_position_curvature`] for `frame`'s origin (None: the feature frame).
+    pub fn add_position_curvature_of(
+        &mut self,
+        frame: Option<FrameId>,
+        s: f64,
+        g: &Vector3<f64>,
+        weight: f64,
+        hessian: &mut SegmentHessian,
+    ) {
+        let jac = self.jacobian_of(frame, s);
+        position_hessian(jac, g, hessian.scratch());
+        hessian.add_scratch_at(s, weight);
+    }
+
+    /// [`Segment::add_axis_curvature`] for `frame`'s axis `col` (None: the feature frame).
+    pub fn add_axis_curvature_of(
+        &mut self,
+        frame: Option<FrameId>,
+        s: f64,
+        col: usize,
+        w: &Vector3<f64>,
+        weight: f64,
+        hessian: &mut SegmentHessian,
+    ) {
+        let x: Vector3<f64> = self.point_of(frame, s).rotation.column(col).into();
+        let jac = self.jacobian_of(frame, s);
+        direction_hessian(jac, &x, w, hessian.scratch());
+        hessian.add_scratch_at(s, weight);
+    }
+
     fn index(&mut self, s: f64) -> usize {
         if let Some(i) = self.ws.samples[..self.ws.used].iter().position(|x| x.s == s) {
             return i;

@@ -589,7 +589,16 @@ impl Learner {
         let Replanner::Inline(planner) = &mut self.replanner else {
             return Err(PhriError::invalid("replan_latency", "replans on its worker, not inline"));
         };
-        let info = planner.solve(&self.weights)?;
+        let info = match planner.solve(&self.weights) {
+            Ok(info) => info,
+            Err(e) => {
+                // The arm keeps its plan; later replans start again from it.
+                planner.reject();
+                self.replan_pending = false;
+                self.history.rejected.push(RejectedPlan { t, reason: format!("replan failed: {e}") });
+                return Err(e);
+            }
+        };
         let pending = self.params.replan_iterations > 0 && !info.converged;
         if pending && !self.replan_pending {
             self.pending_since = t;
@@ -663,6 +672,11 @@ impl Learner {
             Outcome::Infeasible { info, reason } => {
                 self.history.interactions[pending.record].replan = Some(info);
                 self.history.rejected.push(RejectedPlan { t: anchor, reason });
+            }
+            // A feature that failed on the worker (e.g. a Python feature that raised) rejects that
+            // replan only: the arm keeps its plan and the history says why.
+            Outcome::Failed(e @ PhriError::Feature { .. }) => {
+                self.history.rejected.push(RejectedPlan { t: anchor, reason: format!("replan failed: {e}") });
             }
             Outcome::Failed(e) => {
                 self.history.rejected.push(RejectedPlan { t: anchor, reason: e.to_string() });

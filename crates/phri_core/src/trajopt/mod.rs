@@ -249,7 +249,10 @@ impl TrajectoryOptimizer {
         // With every weight 0 the evaluation is the penalties alone.
         let zeros = vec![0.0; features.len()];
         let (_, penalty) = self.evaluate(features, &zeros, Buffer::Trial, Derivatives::Gradient);
-        Ok(penalty)
+        match features.take_failure() {
+            Some(e) => Err(e),
+            None => Ok(penalty),
+        }
     }
 
     /// Minimises w·Φ(ξ) (+ clearance penalty) from `init` (warm start on these waypoints only;
@@ -385,8 +388,13 @@ impl TrajectoryOptimizer {
         pin_ends_within_limits(&mut self.traj, start, goal, &self.lower, &self.upper);
         let began = Instant::now();
         let deadline = self.params.max_time.map(|t| began + t);
+        features.take_failure();
         let (iterations, coarse_iterations, evaluations, cost, penalty, converged) =
             self.solve_prepared(features, weights, deadline, start_mode, levels);
+        if let Some(e) = features.take_failure() {
+            // A feature failed: the plan is not a solve of the problem asked.
+            return Err(e);
+        }
         let traj = std::mem::take(&mut self.traj);
         let max_violation = self.violation(features, &traj);
         let (max_step_excess, relative_step_excess) = collision::executed_step_excess(&self.params.max_step, &traj);

@@ -132,7 +132,12 @@ impl TrajectoryOptimizer {
                 run.converged = true;
                 break;
             }
-            if deadline.is_some_and(|d| Instant::now() >= d) || self.cancel.as_ref().is_some_and(|c| c.requested()) {
+            // A feature that failed (e.g. a Python feature that raised) ends the solve: it reports
+            // the error.
+            if deadline.is_some_and(|d| Instant::now() >= d)
+                || self.cancel.as_ref().is_some_and(|c| c.requested())
+                || features.failed()
+            {
                 break;
             }
             run.iterations += 1;

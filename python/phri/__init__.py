@@ -28,12 +28,14 @@ from phri._phri import (
     relevance,
 )
 from phri.config import Task, load_task, task_names
+from phri.feature import Feature, feature
 
 # phri logs to the "phri" logger tree and leaves where it goes to the application (the CLI: stderr).
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 __all__ = [
     "Deformation",
+    "Feature",
     "Features",
     "ImpedanceController",
     "InteractionDetector",
@@ -50,6 +52,7 @@ __all__ = [
     "Task",
     "__version__",
     "exceptions",
+    "feature",
     "load_task",
     "task_names",
     "relevance",

@@ -10,6 +10,7 @@ from __future__ import annotations
 __all__ = [
     "ConfigError",
     "ConnectionLostError",
+    "FeatureError",
     "InvalidParameterError",
     "MissingExtraError",
     "NonFiniteError",
@@ -52,6 +53,11 @@ class UrdfError(PhriError, ValueError):
 
 class ConfigError(PhriError, ValueError):
     """A task, study or simulation file with a missing key or a wrong value (names file and key)."""
+
+
+class FeatureError(PhriError, ValueError):
+    """A feature defined outside phri's core (in Python) failed: it raised, returned the wrong shape
+    or a non-finite value, or took longer than its ``timeout``. The message names the feature."""
 
 
 class PlanningError(PhriError, ValueError):

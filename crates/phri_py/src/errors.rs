@@ -17,6 +17,7 @@ pub enum Kind {
     NotConverged,
     Planning,
     ReplanWorker,
+    Feature,
 }
 
 impl Kind {
@@ -30,11 +31,12 @@ impl Kind {
             Kind::NotConverged => "NotConvergedError",
             Kind::Planning => "PlanningError",
             Kind::ReplanWorker => "ReplanWorkerError",
+            Kind::Feature => "FeatureError",
         }
     }
 
     fn cell(self) -> &'static PyOnceLock<Py<PyType>> {
-        static CELLS: [PyOnceLock<Py<PyType>>; 8] = [const { PyOnceLock::new() }; 8];
+        static CELLS: [PyOnceLock<Py<PyType>>; 9] = [const { PyOnceLock::new() }; 9];
         &CELLS[self as usize]
     }
 }
@@ -60,6 +62,7 @@ pub fn to_py(e: PhriError) -> PyErr {
         PhriError::NotConverged { .. } => Kind::NotConverged,
         PhriError::Planning { .. } => Kind::Planning,
         PhriError::ReplanWorker { .. } => Kind::ReplanWorker,
+        PhriError::Feature { .. } => Kind::Feature,
     };
     error(kind, e.to_string())
 }

@@ -2,7 +2,8 @@
 
 use numpy::{PyArray1, PyArrayDyn, PyArrayMethods};
 use phri_core::features::{
-    feature_parameters, FeatureParams, FeatureSet, FeatureSpec, KeepoutSpec, BUILTIN_FEATURES, DEFAULT_SAMPLES, MAX_SAMPLES,
+    declared_parameters, feature_parameters, DeclaredSpec, Feature, FeatureParams, FeatureSet, FeatureSpec, KeepoutSpec,
+    BUILTIN_FEATURES, DECLARED_KINDS, DEFAULT_SAMPLES, MAX_SAMPLES,
 };
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
@@ -11,6 +12,7 @@ use pyo3::types::{PyDict, PyMapping, PyString, PyTuple};
 use crate::arrays::{matrix, vector, zeros, ArrayIn};
 use crate::errors::{error, IntoPy, Kind};
 use crate::ints::{bounded, int};
+use crate::python_feature::{is_python_feature, python_feature};
 use crate::robot::PyRobot;
 use crate::scene::PyScene;
 
@@ -60,21 +62,45 @@ fn spec(i: usize, item: &Bound<'_, PyAny>) -> PyResult<FeatureSpec> {
         Ok(v) => v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}[\"name\"] must be a string")))?,
         Err(_) => return Err(error(Kind::InvalidParameter, format!("{arg} needs a \"name\""))),
     };
-    let takes = feature_parameters(&name);
+    let kind: Option<String> = match map.get_item("kind") {
+        Ok(v) => Some(v.extract().map_err(|_| PyTypeError::new_err(format!("{arg}[\"kind\"] must be a string")))?),
+        Err(_) => None,
+    };
+    if let Some(kind) = &kind {
+        if !DECLARED_KINDS.contains(&kind.as_str()) {
+            return Err(error(
+                Kind::UnknownName,
+                format!("{arg}.kind: unknown feature kind '{kind}'; known: {}", DECLARED_KINDS.join(", ")),
+            ));
+        }
+    }
+    let takes = match &kind {
+        Some(kind) => declared_parameters(kind),
+        None => feature_parameters(&name),
+    };
     let mut given = Given::new();
     for key in map.keys()?.iter() {
         let key: String = key.extract().map_err(|_| PyTypeError::new_err(format!("{arg}: keys must be strings")))?;
-        if key == "name" {
+        if key == "name" || (key == "kind" && kind.is_some()) {
             continue;
         }
         if !takes.contains(&key.as_str()) {
             let list = if takes.is_empty() { "none".to_string() } else { takes.join(", ") };
+            if let Some(kind) = &kind {
+                return Err(error(
+                    Kind::InvalidParameter,
+                    format!("{arg}.{key}: a '{kind}' feature takes no parameter '{key}' (it takes: {list})"),
+                ));
+            }
             return Err(error(
                 Kind::InvalidParameter,
                 format!("{arg}.{key}: feature '{name}' takes no parameter '{key}' (it takes: {list})"),
             ));
         }
         given.insert(key.clone(), map.get_item(&key)?);
+    }
+    if let Some(kind) = &kind {
+        return Ok(FeatureSpec { name, params: FeatureParams::Declared(declared_params(&arg, kind, &given)?) });
     }
     let params = if takes.contains(&"keep_out") {
         FeatureParams::Keepout(keepout_params(&arg, &name, &given)?)
@@ -128,6 +154,82 @@ fn keepout_params(arg: &str, name: &str, given: &Given<'_>) -> PyResult<KeepoutS
     Ok(KeepoutSpec { keep_out, radius, offset, samples })
 }
 
+/// Parameter `key` of feature item `arg` as a string, if given.
+fn text(arg: &str, given: &Given<'_>, key: &str) -> PyResult<Option<String>> {
+    given
+        .get(key)
+        .map(|v| v.extract::<String>().map_err(|_| PyTypeError::new_err(format!("{arg}.{key} must be a string"))))
+        .transpose()
+}
+
+/// Parameter `key` of feature item `arg` as a vector of `len` numbers (any length if None).
+fn numbers(arg: &str, given: &Given<'_>, key: &str, len: Option<usize>) -> PyResult<Option<Vec<f64>>> {
+    let Some(v) = given.get(key) else { return Ok(None) };
+    let a: ArrayIn<'_> = v.extract().map_err(|e| PyTypeError::new_err(format!("{arg}.{key}: {e}")))?;
+    let len = len.unwrap_or_else(|| a.len().unwrap_or(0));
+    Ok(Some(vector(&format!("{arg}.{key}"), &a, len)?.into_owned()))
+}
+
+/// The parameters of declared feature item `arg` of kind `kind` (one of `DECLARED_KINDS`).
+fn declared_params(arg: &str, kind: &str, given: &Given<'_>) -> PyResult<DeclaredSpec> {
+    let frame = text(arg, given, "frame")?;
+    let need = |key: &str, what: &str| error(Kind::InvalidParameter, format!("{arg}.{key}: a '{kind}' feature needs {what}"));
+    Ok(match kind {
+        "height" => DeclaredSpec::Height {
+            frame,
+            object: text(arg, given, "object")?,
+            offset: number(arg, given, "offset")?.unwrap_or(0.0),
+        },
+        "distance" => {
+            let shape = text(arg, given, "shape")?.unwrap_or_else(|| "cylinder".into());
+            if shape != "cylinder" && shape != "sphere" {
+                return Err(error(Kind::InvalidParameter, format!("{arg}.shape must be 'cylinder' or 'sphere', got '{shape}'")));
+            }
+            let samples = match given.get("samples") {
+                Some(v) => {
+                    let n = int(v).map_err(|_| PyTypeError::new_err(format!("{arg}.samples must be an integer")))?;
+                    bounded(&format!("{arg}.samples"), n, 1..=MAX_SAMPLES, "points per segment")?
+                }
+                None => DEFAULT_SAMPLES,
+            };
+            let offset = numbers(arg, given, "offset", Some(3))?.map_or([0.0; 3], |o| [o[0], o[1], o[2]]);
+            DeclaredSpec::Distance {
+                frame,
+                object: text(arg, given, "object")?.ok_or_else(|| need("object", "the scene object it keeps away from"))?,
+                radius: number(arg, given, "radius")?.ok_or_else(|| need("radius", "its radius [m]"))?,
+                offset,
+                samples,
+                sphere: shape == "sphere",
+            }
+        }
+        "alignment" => {
+            let axis = match text(arg, given, "axis")?.as_deref() {
+                None | Some("x") => 0,
+                Some("y") => 1,
+                Some("z") => 2,
+                Some(other) => {
+                    return Err(error(Kind::InvalidParameter, format!("{arg}.axis must be 'x', 'y' or 'z', got '{other}'")))
+                }
+            };
+            let d = numbers(arg, given, "direction", Some(3))?.ok_or_else(|| need("direction", "a world direction (x, y, z)"))?;
+            DeclaredSpec::Alignment { frame, axis, direction: [d[0], d[1], d[2]] }
+        }
+        "joint_distance" => DeclaredSpec::JointDistance {
+            pose: numbers(arg, given, "pose", None)?.ok_or_else(|| need("pose", "a pose (one angle per joint) [rad]"))?,
+        },
+        _ => DeclaredSpec::Speed { frame },
+    })
+}
+
+/// Per declared kind, the names of its parameters (`phri._phri.DECLARED_PARAMETERS`).
+pub fn declared(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let out = PyDict::new(py);
+    for kind in DECLARED_KINDS {
+        out.set_item(kind, PyTuple::new(py, declared_parameters(kind))?)?;
+    }
+    Ok(out)
+}
+
 /// Per built-in feature, the names of its parameters (`phri._phri.FEATURE_PARAMETERS`).
 pub fn parameters(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let out = PyDict::new(py);
@@ -158,7 +260,19 @@ impl PyFeatures {
         if features.is_instance_of::<PyString>() {
             return Err(PyTypeError::new_err("features must be a list of feature names or mappings, not a string"));
         }
-        let specs = features.try_iter()?.enumerate().map(|(i, item)| spec(i, &item?)).collect::<PyResult<Vec<_>>>()?;
+        // Per item: a built-in or declared specification, or a Python feature.
+        let items = features
+            .try_iter()?
+            .enumerate()
+            .map(|(i, item)| {
+                let item = item?;
+                if is_python_feature(&item) {
+                    Ok(Err(python_feature(&format!("features[{i}]"), &item)?))
+                } else {
+                    spec(i, &item).map(Ok)
+                }
+            })
+            .collect::<PyResult<Vec<_>>>()?;
         let frame = match frame {
             Some(f) => f.to_string(),
             None => robot.frames.feature.clone().ok_or_else(|| {
@@ -171,7 +285,18 @@ impl PyFeatures {
         let model = robot.model.clone();
         let frame_id = model.frame_id(&frame).py_err()?;
         let n = model.nq();
-        let mut set = FeatureSet::from_specs(model, frame_id, &specs, scene.as_ref().map(|s| &s.scene)).py_err()?;
+        let on_scene = scene.as_ref().map(|s| &s.scene);
+        let built = items
+            .iter()
+            .enumerate()
+            .map(|(i, item)| match item {
+                Ok(spec) => spec.build(&format!("features[{i}]"), on_scene, &model),
+                Err(python) => Ok(Box::new(python.clone()) as Box<dyn Feature>),
+            })
+            .collect::<phri_core::Result<Vec<_>>>()
+            .py_err()?;
+        let mut set = FeatureSet::new(model, frame_id, built).py_err()?;
+        let specs: Vec<&FeatureSpec> = items.iter().filter_map(|i| i.as_ref().ok()).collect();
         if let Some(r) = &ranges {
             set.set_ranges(Some(&*vector("ranges", r, set.len())?)).py_err()?;
         }

@@ -17,6 +17,7 @@ mod impedance;
 mod interaction;
 mod ints;
 mod learner;
+mod python_feature;
 mod reference;
 mod robot;
 mod safety;
@@ -31,6 +32,8 @@ fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<features::PyFeatures>()?;
     m.add("FEATURE_NAMES", pyo3::types::PyTuple::new(m.py(), phri_core::features::BUILTIN_FEATURES)?)?;
     m.add("FEATURE_PARAMETERS", features::parameters(m.py())?)?;
+    m.add("DECLARED_KINDS", pyo3::types::PyTuple::new(m.py(), phri_core::features::DECLARED_KINDS)?)?;
+    m.add("DECLARED_PARAMETERS", features::declared(m.py())?)?;
     m.add_class::<scene::PySceneObject>()?;
     m.add_class::<scene::PyScene>()?;
     m.add_class::<update::PyWeightUpdate>()?;

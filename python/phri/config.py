@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from phri._phri import (
+    DECLARED_PARAMETERS,
     FEATURE_NAMES,
     FEATURE_PARAMETERS,
     Features,
@@ -33,6 +34,7 @@ from phri._phri import (
 )
 from phri._validate import Reader, decode_utf8, did_you_mean, is_integer, parse_toml
 from phri.exceptions import ConfigError, PhriError, UnknownNameError
+from phri.feature import load_feature, source_file
 from phri.robots import SAFETY_KEYS, SafetySpec, read_safety
 
 __all__ = ["FeatureSpec", "Task", "TaskSafety", "load_task", "task_names"]
@@ -67,11 +69,26 @@ class FeatureSpec:
     upper: float = math.inf
     learned: bool = True
     #: The feature's own parameters (FEATURE_PARAMETERS[name]), e.g. a keep-out feature's
-    #: keep_out, radius [m], offset [m] and samples.
+    #: keep_out, radius [m], offset [m] and samples; a declared feature's ``kind`` and that kind's
+    #: parameters (DECLARED_PARAMETERS[kind]); a Python feature's ``source``, the ``folder`` it is
+    #: looked up in and its ``args``.
     params: dict[str, Any] = field(default_factory=dict)
 
-    def feature(self) -> str | dict[str, Any]:
-        """The item of ``phri.Features(robot, features)`` for this feature."""
+    def code(self) -> tuple[Path, str] | None:
+        """A Python feature's module file and its path relative to the task file's folder (None
+        for a built-in or declared feature): a study copies it beside its copy of the task file."""
+        if "source" not in self.params:
+            return None
+        folder = Path(self.params["folder"])
+        path, _ = source_file(self.params["source"], folder)
+        return path, path.relative_to(folder).as_posix()
+
+    def feature(self, robot: Robot | None = None, scene: Scene | None = None) -> Any:
+        """The item of ``phri.Features(robot, features)`` for this feature: a name, a mapping, or
+        (``source``) the Python feature the task file names, made for `robot` and `scene`."""
+        if "source" in self.params:
+            p = self.params
+            return load_feature(p["source"], Path(p["folder"]), self.name, p["args"], robot, scene)
         return {"name": self.name, **self.params} if self.params else self.name
 
 
@@ -134,7 +151,7 @@ class Task:
             )
         return Features(
             robot,
-            [f.feature() for f in self.features],
+            [f.feature(robot, self.scene) for f in self.features],
             scene=self.scene,
             frame=self.feature_frame,
             ranges=ranges,
@@ -275,17 +292,34 @@ def _safety(r: Reader) -> TaskSafety:
     return TaskSafety(tool_box, read_safety(s))
 
 
-def _feature(r: Reader, name: str, table: Any, scene: Scene) -> FeatureSpec:
-    """One [features.<name>] table: the weights and the feature's own parameters."""
+def _feature(r: Reader, name: str, table: Any, scene: Scene, scale: float) -> FeatureSpec:
+    """One [features.<name>] table: the weights and the feature's own parameters; a table with
+    ``kind`` declares a feature of that kind, one with ``source`` names a Python feature."""
+    if not isinstance(table, dict):
+        raise r.fail(f"features.{name}", "a table", table)
+    if "kind" in table and "source" in table:
+        raise ConfigError(f"{r.source}: key 'features.{name}': give either kind or source, not both")
+    if "kind" in table:
+        return _declared(r, name, table, scene, scale)
+    if "source" in table:
+        return _python_feature(r, name, table)
     if name not in FEATURE_NAMES:
         raise ConfigError(
             f"{r.source}: key 'features.{name}': unknown feature; known: {', '.join(FEATURE_NAMES)}"
-            f"{did_you_mean(name, FEATURE_NAMES)}"
+            f"{did_you_mean(name, FEATURE_NAMES)} (or declare one with kind = ..., or name Python code with "
+            "source = \"module:Name\")"
         )
-    if not isinstance(table, dict):
-        raise r.fail(f"features.{name}", "a table", table)
     parameters = FEATURE_PARAMETERS[name]
     f = Reader(r.source, table, f"features.{name}.", WEIGHT_KEYS + parameters)
+    if "keep_out" in parameters:
+        f.get("radius")  # a keep-out feature needs both: a missing one is named here
+        _object(f, "keep_out", scene)
+    params = {key: _PARAMETER_READERS[key](f, key) for key in parameters if key in table}
+    return FeatureSpec(name, *_weights(f, name, table), params)
+
+
+def _weights(f: Reader, name: str, table: dict[str, Any]) -> tuple[float, float, float, float, float, bool]:
+    """(initial, true, step, lower, upper, learned) of a [features.<name>] table."""
     learned = f.get("learned", True)
     if not isinstance(learned, bool):
         raise f.fail("learned", "true or false", learned)
@@ -305,14 +339,73 @@ def _feature(r: Reader, name: str, table: Any, scene: Scene) -> FeatureSpec:
     step = f.number("step", 0.0)
     if step < 0:
         raise f.fail("step", "a number >= 0", step)
-    if "keep_out" in parameters:
-        f.get("radius")  # a keep-out feature needs both: a missing one is named here
-        keep_out = f.string("keep_out")
-        if keep_out not in scene:
-            objects = f"({', '.join(scene.names)})" if len(scene) else "(it has none)"
-            raise f.fail("keep_out", f"the name of an object of the task's [scene] {objects}", keep_out)
-    params = {key: _PARAMETER_READERS[key](f, key) for key in parameters if key in table}
-    return FeatureSpec(name, initial, true, step, lower, upper, learned, params)
+    return initial, true, step, lower, upper, learned
+
+
+def _object(f: Reader, key: str, scene: Scene) -> str:
+    """Key `key`: the name of an object of the task's scene."""
+    name = f.string(key)
+    if name not in scene:
+        objects = f"({', '.join(scene.names)})" if len(scene) else "(it has none)"
+        raise f.fail(key, f"the name of an object of the task's [scene] {objects}", name)
+    return name
+
+
+#: How each parameter of a declared feature is read (which kind takes which: DECLARED_PARAMETERS);
+#: the core checks the values (a frame of the robot, a radius > 0, ...).
+_DECLARED_READERS: dict[str, Any] = {
+    "frame": lambda f, key, kind, scene, scale: f.string(key),
+    "object": lambda f, key, kind, scene, scale: _object(f, key, scene),
+    "offset": lambda f, key, kind, scene, scale: (
+        f.number(key) if kind == "height" else tuple(float(x) for x in f.vector(key, 3))
+    ),
+    "radius": lambda f, key, kind, scene, scale: f.number(key, positive=True),
+    "samples": lambda f, key, kind, scene, scale: _integer(f, key, 1),
+    "shape": lambda f, key, kind, scene, scale: f.string(key),
+    "axis": lambda f, key, kind, scene, scale: f.string(key),
+    "direction": lambda f, key, kind, scene, scale: tuple(float(x) for x in f.vector(key, 3)),
+    "pose": lambda f, key, kind, scene, scale: tuple(float(x) * scale for x in f.vector(key, 7)),
+}
+
+
+def _declared(r: Reader, name: str, table: dict[str, Any], scene: Scene, scale: float) -> FeatureSpec:
+    """A [features.<name>] table with ``kind``: a declared feature (the kinds: DECLARED_PARAMETERS;
+    ``pose`` in the task's angle unit)."""
+    kind = table["kind"]
+    if kind not in DECLARED_PARAMETERS:
+        known = tuple(DECLARED_PARAMETERS)
+        raise ConfigError(
+            f"{r.source}: key 'features.{name}.kind': unknown kind {kind!r}; known: {', '.join(known)}"
+            f"{did_you_mean(str(kind), known)}"
+        )
+    parameters = DECLARED_PARAMETERS[kind]
+    f = Reader(r.source, table, f"features.{name}.", (*WEIGHT_KEYS, "kind", *parameters))
+    required = {"distance": ("object", "radius"), "alignment": ("direction",), "joint_distance": ("pose",)}
+    for key in required.get(kind, ()):
+        f.get(key)
+    params = {"kind": kind} | {
+        key: _DECLARED_READERS[key](f, key, kind, scene, scale) for key in parameters if key in table
+    }
+    return FeatureSpec(name, *_weights(f, name, table), params)
+
+
+def _python_feature(r: Reader, name: str, table: dict[str, Any]) -> FeatureSpec:
+    """A [features.<name>] table with ``source = "module:Name"``: Python code beside the task file
+    (``args``: keywords for it)."""
+    f = Reader(r.source, table, f"features.{name}.", (*WEIGHT_KEYS, "source", "args"))
+    source = f.string("source")
+    path = Path(r.source)
+    if not path.is_file():
+        raise f.fail("source", "in a task file of your own (a shipped task names no code)", source)
+    args = f.get("args", {})
+    if not isinstance(args, dict):
+        raise f.fail("args", "a table of keyword arguments", args)
+    folder = path.resolve().parent
+    try:
+        source_file(source, folder)
+    except ConfigError as e:
+        raise ConfigError(f"{r.source}: key 'features.{name}.source': {e}") from None
+    return FeatureSpec(name, *_weights(f, name, table), {"source": source, "folder": str(folder), "args": args})
 
 
 def _parse(data: dict[str, Any], source: str) -> Task:
@@ -332,7 +425,7 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     feats = r.get("features")
     if not isinstance(feats, dict) or not feats:
         raise r.fail("features", "a table of feature tables, e.g. [features.table]", feats)
-    specs = tuple(_feature(r, name, table, scene) for name, table in feats.items())
+    specs = tuple(_feature(r, name, table, scene, scale) for name, table in feats.items())
     task_feature = r.string("task_feature")
     if task_feature not in feats:
         raise r.fail("task_feature", f"one of the task's features {list(feats)}", task_feature)

@@ -35,13 +35,20 @@ during the call.
 
 from __future__ import annotations
 
+import importlib.util
+import inspect
+import sys
 from collections.abc import Callable
-from typing import Any, ClassVar
+from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Feature", "feature"]
+from phri.exceptions import ConfigError
+
+__all__ = ["Feature", "feature", "load_feature"]
 
 Array = NDArray[np.float64]
 
@@ -55,7 +62,7 @@ class Feature:
     as the keep-outs do), ``timeout`` (the most one call may take [s]).
     """
 
-    name: ClassVar[str] | str = ""
+    name: str = ""
     samples: int = 1
     timeout: float = 1.0
     gradient: Callable[[Array], Any] | None = None
@@ -109,3 +116,84 @@ def feature(
         if f is not None and not callable(f):
             raise TypeError(f"{arg} must be callable or None")
     return _FunctionFeature(name, value, gradient, hessian, samples, timeout)
+
+
+def _module(source: str, path: Path) -> ModuleType:
+    """The module in file `path` (loaded once per file and process)."""
+    key = str(path.resolve())
+    cached = _MODULES.get(key)
+    if cached is not None:
+        return cached
+    spec = importlib.util.spec_from_file_location(f"phri_user_features_{len(_MODULES)}", path)
+    if spec is None or spec.loader is None:
+        raise ConfigError(f"source '{source}': cannot import {path}")
+    module = importlib.util.module_from_spec(spec)
+    # The file's folder first on the path while it runs, so that it can import its neighbours.
+    sys.path.insert(0, str(path.parent))
+    try:
+        spec.loader.exec_module(module)
+    except Exception as e:
+        raise ConfigError(f"source '{source}': importing {path} raised {type(e).__name__}: {e}") from e
+    finally:
+        sys.path.remove(str(path.parent))
+    _MODULES[key] = module
+    return module
+
+
+_MODULES: dict[str, ModuleType] = {}
+
+
+def source_file(source: str, folder: Path) -> tuple[Path, str]:
+    """The file and attribute a task file's ``source = "package.module:Name"`` names, looked up
+    in `folder` (the task file's): ``folder/package/module.py`` (or ``.../module/__init__.py``).
+    Only files under `folder` are imported: a task names its own code, never an installed module."""
+    module, sep, attribute = source.partition(":")
+    parts = module.split(".")
+    if not sep or not attribute.isidentifier() or not all(p.isidentifier() for p in parts):
+        raise ConfigError(f"source '{source}': must be 'module:Name' (e.g. 'mylab.features:CupOverTray')")
+    base = folder.joinpath(*parts)
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path, attribute
+    raise ConfigError(
+        f"source '{source}': no module file {base.with_suffix('.py')} (modules are looked up in the task "
+        "file's folder)"
+    )
+
+
+def load_feature(
+    source: str, folder: Path, name: str, args: dict[str, Any], robot: Any, scene: Any
+) -> Feature:
+    """The feature a task file names by `source` (see :func:`source_file`): the module's attribute,
+    an instance of :class:`Feature` as it is, or a class or function called with the table's
+    ``args`` as keywords (and ``robot=``, ``scene=`` when it takes them). Its name is the task's
+    key `name` (a feature object naming itself otherwise is an error)."""
+    path, attribute = source_file(source, folder)
+    module = _module(source, path)
+    if not hasattr(module, attribute):
+        raise ConfigError(f"source '{source}': {path} defines no '{attribute}'")
+    obj = getattr(module, attribute)
+    if not isinstance(obj, Feature):
+        if not callable(obj):
+            raise ConfigError(f"source '{source}': '{attribute}' is neither a phri.Feature nor callable")
+        kwargs = dict(args)
+        try:
+            parameters = inspect.signature(obj).parameters
+        except (TypeError, ValueError):
+            parameters = {}  # type: ignore[assignment]
+        for key, value in (("robot", robot), ("scene", scene)):
+            if key in parameters and key not in kwargs:
+                kwargs[key] = value
+        try:
+            obj = obj(**kwargs)
+        except Exception as e:
+            raise ConfigError(f"source '{source}': {attribute}(**args) raised {type(e).__name__}: {e}") from e
+        if not isinstance(obj, Feature):
+            raise ConfigError(f"source '{source}': {attribute}(...) returned {type(obj).__name__}, not a phri.Feature")
+    elif args:
+        raise ConfigError(f"source '{source}': '{attribute}' is a feature object; it takes no args")
+    if not obj.name:
+        obj.name = name
+    elif obj.name != name:
+        raise ConfigError(f"source '{source}': the feature names itself '{obj.name}', but the task calls it '{name}'")
+    return obj

@@ -226,11 +226,14 @@ class StudyConfig:
         """The files of the tasks given as paths, by the name of their copy in a study folder's
         :data:`TASKS_FOLDER` (``<name>.toml``)."""
         loaded = self.load_tasks()
-        return {
-            f"{task.name}.toml": Path(task.source)
-            for spec, task in zip(self.tasks, loaded.values(), strict=True)
-            if _is_path(spec)
-        }
+        files = {}
+        for spec, task in zip(self.tasks, loaded.values(), strict=True):
+            if _is_path(spec):
+                files[f"{task.name}.toml"] = Path(task.source)
+                # The Python features it names, at the same place relative to the copy.
+                for code in filter(None, (f.code() for f in task.features)):
+                    files[code[1]] = code[0]
+        return files
 
     def task_names(self) -> list[str]:
         """Names of the study's tasks (a file's `name` key for a task given as a path)."""
@@ -313,6 +316,12 @@ class StudyConfig:
             if not task.knots:  # a task that plans every waypoint has the digest it had before knots
                 del d["knots"]
             d["scene"] = [_scene_object_record(o) for o in task.scene.objects]
+            for feature, record in zip(task.features, d["features"], strict=True):
+                code = feature.code()
+                if code is not None:
+                    # What the code says, not where it is (a study reads its folder's copy).
+                    record["params"] = {k: v for k, v in record["params"].items() if k != "folder"}
+                    record["params"]["code"] = hashlib.sha256(code[0].read_bytes()).hexdigest()
             if isinstance(d.get("safety"), dict) and isinstance(d["safety"].get("limits"), dict):
                 # Where the file is, not what it says (a study reads its folder's copy on resume).
                 d["safety"]["limits"].pop("source", None)

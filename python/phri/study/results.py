@@ -306,6 +306,7 @@ class ResultStore:
         if task_files:
             (self.run_dir / TASKS_FOLDER).mkdir(exist_ok=True)
             for name, source in task_files.items():
+                (self.run_dir / TASKS_FOLDER / name).parent.mkdir(parents=True, exist_ok=True)
                 write_atomic(self.run_dir / TASKS_FOLDER / name, source.read_bytes())
         manifest = {
             "format": FORMAT,

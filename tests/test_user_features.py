@@ -42,7 +42,9 @@ def fd_gradient(features: phri.Features, xi: np.ndarray, h: float = 1e-6) -> np.
     return out
 
 
-def reference_per_segment(robot: phri.Robot, frame: str, scene: phri.Scene, xi: np.ndarray, specs) -> np.ndarray:
+def reference_per_segment(
+    robot: phri.Robot, frame: str, scene: phri.Scene, xi: np.ndarray, specs
+) -> np.ndarray:
     """φ per segment of the declared specs, from Robot.frame_pose and numpy alone."""
     pose = robot.frame_pose(frame, xi)  # (N, 4, 4)
     p, rot = pose[:, :3, 3], pose[:, :3, :3]
@@ -114,11 +116,19 @@ def test_declared_kinds_match_numpy_and_finite_differences_on_every_frame(robot_
     ("spec", "error", "pattern"),
     [
         ({"kind": "hieght"}, ex.UnknownNameError, r"features\[1\]\.kind: unknown feature kind 'hieght'"),
-        ({"kind": "height", "frame": "link_99"}, ex.UnknownNameError, r"features\[1\]\.frame: unknown frame 'link_99'"),
+        (
+            {"kind": "height", "frame": "link_99"},
+            ex.UnknownNameError,
+            r"features\[1\]\.frame: unknown frame 'link_99'",
+        ),
         ({"kind": "height", "object": "sofa"}, ex.UnknownNameError, r"sofa"),
         ({"kind": "distance", "object": "laptop"}, ex.InvalidParameterError, r"features\[1\]\.radius"),
         ({"kind": "distance", "object": "laptop", "radius": -1.0}, ex.InvalidParameterError, r"radius"),
-        ({"kind": "distance", "object": "laptop", "radius": 0.2, "shape": "cone"}, ex.InvalidParameterError, "shape"),
+        (
+            {"kind": "distance", "object": "laptop", "radius": 0.2, "shape": "cone"},
+            ex.InvalidParameterError,
+            "shape",
+        ),
         ({"kind": "alignment", "direction": (0, 0, 0)}, ex.InvalidParameterError, r"direction"),
         ({"kind": "alignment", "direction": (0, 0, 1), "axis": "w"}, ex.InvalidParameterError, r"axis"),
         ({"kind": "joint_distance", "pose": (0.0, 1.0)}, ex.ShapeError, r"features\[1\]\.pose"),
@@ -185,7 +195,10 @@ def test_a_python_table_gives_the_builtins_phi_plan_and_learning(table_task):
 def learner_for(features: phri.Features, task, **kwargs) -> phri.Learner:
     opt = phri.TrajectoryOptimizer(features, task.waypoints, duration=task.duration)
     update = phri.WeightUpdate(
-        task.vector("step"), task.vector("lower"), task.vector("upper"), learned=[f.learned for f in task.features]
+        task.vector("step"),
+        task.vector("lower"),
+        task.vector("upper"),
+        learned=[f.learned for f in task.features],
     )
     return phri.Learner(
         features, phri.Deformation(), update, phri.InteractionDetector(), opt, task.vector("initial"),
@@ -237,10 +250,10 @@ def bad(kind: str) -> phri.Feature:
 @pytest.mark.parametrize(
     ("kind", "pattern"),
     [
-        ("shape", r"feature 'wobbly': value\(q\) must return shape \(30,\) for q of shape \(30, 7\), got \(30, 2\)"),
+        ("shape", r"'wobbly': value\(q\) must return shape \(30,\) for q of shape \(30, 7\), got \(30, 2\)"),
         ("nan", r"feature 'wobbly': the value is not finite at configuration 0"),
-        ("raises", r"feature 'wobbly': value\(q\) raised ZeroDivisionError: (float )?division by zero \(.*test_user_features\.py:\d+\)"),
-        ("slow", r"feature 'wobbly': value\(q\) took 0\.\d+ s for 30 configurations, over its limit of 0\.05 s"),
+        ("raises", r"'wobbly': value\(q\) raised ZeroDivisionError: .*zero \(.*user_features\.py:\d+\)"),
+        ("slow", r"'wobbly': value\(q\) took 0\.\d+ s for 30 configurations, over its limit of 0\.05 s"),
         ("text", r"feature 'wobbly': value\(q\) must return an array of shape \(30,\)"),
     ],
 )  # fmt: skip
@@ -267,7 +280,9 @@ def test_python_features_that_are_not_features_are_refused():
         def value(self, q):
             return np.zeros(len(q))
 
-    with pytest.raises(ex.InvalidParameterError, match=r"features\[1\]: a Python feature's `name` must not be empty"):
+    with pytest.raises(
+        ex.InvalidParameterError, match=r"features\[1\]: a Python feature's `name` must not be empty"
+    ):
         phri.Features(robot, ["efficiency", Nameless()])
     with pytest.raises(ex.InvalidParameterError, match=r"features\[1\]\.timeout"):
         phri.Features(robot, ["efficiency", phri.feature("t", np.sum, timeout=-1.0)])
@@ -324,7 +339,9 @@ class Table(phri.Feature):
 def lab_task(folder: Path, table: str, name: str = "lab_table") -> Path:
     """The shipped table task with its table feature replaced by `table` (a TOML table's body)."""
     text = (Path(phri.__file__).parent / "tasks" / "table.toml").read_text()
-    text = text.replace('name = "table"', f'name = "{name}"').replace('task_feature = "table"', 'task_feature = "mine"')
+    text = text.replace('name = "table"', f'name = "{name}"').replace(
+        'task_feature = "table"', 'task_feature = "mine"'
+    )
     head, rest = text.split("[features.table]\n", 1)
     rest = rest.split("\n\n", 1)[1]
     weights = "initial = 0.0\ntrue = 1.0\nstep = 2.0\nlower = 0.0\nupper = 1.0\n"
@@ -379,7 +396,8 @@ def test_a_study_with_a_python_feature_runs_resumes_and_reports(tmp_path, capsys
     task = lab_task(lab, 'source = "mylab.features:Table"\nargs = { height = 0.0 }')
     run = tmp_path / "run"
     argv = ["study", str(run), "--participants", "2", "--attempts", "1", "--tasks", str(task),
-            "--familiarization", "none", "--no-progress", "--backend", "serial", "--max-episodes", "2"]  # fmt: skip
+            "--familiarization", "none", "--no-progress", "--backend", "serial",
+            "--max-episodes", "2"]  # fmt: skip
     assert phri_main(argv) == 0
     assert (run / "tasks" / "mylab" / "features.py").read_text() == FEATURE_CODE
     assert phri_main(["study", str(run), "--no-progress", "--backend", "serial"]) == 0  # resumes

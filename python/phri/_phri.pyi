@@ -10,6 +10,8 @@ import numpy.typing as npt
 __all__ = [
     "FEATURE_NAMES",
     "FEATURE_PARAMETERS",
+    "DECLARED_KINDS",
+    "DECLARED_PARAMETERS",
     "Deformation",
     "Features",
     "ImpedanceController",
@@ -40,6 +42,10 @@ _FeatureName = Literal["efficiency", "table", "coffee", "coffee_dot", "laptop", 
 FEATURE_NAMES: tuple[_FeatureName, ...]
 #: Per built-in feature, the names of its parameters.
 FEATURE_PARAMETERS: dict[str, tuple[str, ...]]
+#: The kinds a feature may be declared as (a mapping with "kind"), defined in phri_core.
+DECLARED_KINDS: tuple[str, ...]
+#: Per declared kind, the names of its parameters.
+DECLARED_PARAMETERS: dict[str, tuple[str, ...]]
 
 _Array = npt.ArrayLike
 _F64 = npt.NDArray[np.float64]
@@ -169,7 +175,7 @@ class Features:
     def __new__(
         cls,
         robot: Robot,
-        features: Sequence[str | Mapping[str, Any]],
+        features: Sequence[str | Mapping[str, Any] | Any],
         *,
         scene: Scene | None = None,
         frame: str | None = None,

@@ -307,7 +307,7 @@ def _feature(r: Reader, name: str, table: Any, scene: Scene, scale: float) -> Fe
         raise ConfigError(
             f"{r.source}: key 'features.{name}': unknown feature; known: {', '.join(FEATURE_NAMES)}"
             f"{did_you_mean(name, FEATURE_NAMES)} (or declare one with kind = ..., or name Python code with "
-            "source = \"module:Name\")"
+            'source = "module:Name")'
         )
     parameters = FEATURE_PARAMETERS[name]
     f = Reader(r.source, table, f"features.{name}.", WEIGHT_KEYS + parameters)
@@ -405,7 +405,9 @@ def _python_feature(r: Reader, name: str, table: dict[str, Any]) -> FeatureSpec:
         source_file(source, folder)
     except ConfigError as e:
         raise ConfigError(f"{r.source}: key 'features.{name}.source': {e}") from None
-    return FeatureSpec(name, *_weights(f, name, table), {"source": source, "folder": str(folder), "args": args})
+    return FeatureSpec(
+        name, *_weights(f, name, table), {"source": source, "folder": str(folder), "args": args}
+    )
 
 
 def _parse(data: dict[str, Any], source: str) -> Task:

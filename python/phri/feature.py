@@ -189,11 +189,15 @@ def load_feature(
         except Exception as e:
             raise ConfigError(f"source '{source}': {attribute}(**args) raised {type(e).__name__}: {e}") from e
         if not isinstance(obj, Feature):
-            raise ConfigError(f"source '{source}': {attribute}(...) returned {type(obj).__name__}, not a phri.Feature")
+            raise ConfigError(
+                f"source '{source}': {attribute}(...) returned {type(obj).__name__}, not a phri.Feature"
+            )
     elif args:
         raise ConfigError(f"source '{source}': '{attribute}' is a feature object; it takes no args")
     if not obj.name:
         obj.name = name
     elif obj.name != name:
-        raise ConfigError(f"source '{source}': the feature names itself '{obj.name}', but the task calls it '{name}'")
+        raise ConfigError(
+            f"source '{source}': the feature names itself '{obj.name}', but the task calls it '{name}'"
+        )
     return obj

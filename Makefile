@@ -6,7 +6,7 @@ DEPS   := $(VENV)/.deps-installed
 BUILT  := $(VENV)/.ext-built
 CARGO_SOURCES := $(shell find crates -name '*.rs' -o -name Cargo.toml) Cargo.toml
 
-.PHONY: help dev wheel docs demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-trajopt-work bench-python bench-push bench-episode clean
+.PHONY: help dev wheel docs demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-trajopt-work bench-python bench-push bench-features bench-episode clean
 
 help:  ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-20s %s\n", $$1, $$2}'
@@ -85,6 +85,9 @@ bench-python: $(BUILT)  ## Time the per-tick calls of a 1 kHz loop written in Py
 
 bench-push: $(BUILT)  ## Time a push's replan on the FR3's tasks, from the push to the adopted plan
 	$(PY) benches/push_adoption.py
+
+bench-features: $(BUILT)  ## Time cold plans with a feature declared or written in Python against the built-in
+	$(PY) benches/user_features.py
 
 bench-episode: $(BUILT)  ## Time simulated 15 s episodes against real time
 	$(PY) benches/episode.py

@@ -24,6 +24,7 @@ from phri import plots
 from phri._phri import Features, Robot, TimedTrajectory
 from phri.config import STUDY_TASKS, Task, load_task
 from phri.exceptions import InvalidParameterError
+from phri.feature import Feature as PythonFeature
 from phri.sim import (
     STRATEGIES,
     EpisodeConfig,
@@ -242,9 +243,11 @@ def _point_features(task: Task, planner: Planner, model: Robot) -> Features:
     """The task's feature measured at single points: a keep-out feature at one point per segment
     (its sum over a segment's sample points would count the same point several times on a dense
     log), so that segment i of a path gives the feature's value at waypoint i."""
-    spec = task.features[task.task_index].feature()
-    if isinstance(spec, dict) and "keep_out" in spec:
+    spec = task.features[task.task_index].feature(model, task.scene)
+    if isinstance(spec, dict) and ("keep_out" in spec or spec.get("kind") == "distance"):
         spec = {**spec, "samples": 1}
+    elif isinstance(spec, PythonFeature) and spec.samples > 1:
+        spec.samples = 1  # a fresh instance, made for these figures
     return Features(model, [spec], scene=task.scene, frame=planner.features.frame)
 
 

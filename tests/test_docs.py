@@ -140,6 +140,27 @@ def test_the_getting_started_page_runs_as_written(tmp_path: Path, monkeypatch: p
     assert namespace["learner"].weights[namespace["task"].task_index] > 0
 
 
+def test_the_features_page_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The "your own feature" page: its files (blocks whose first line is ``# file: PATH``) are
+    written, its other Python blocks run in one session, in the page's order."""
+    text = (DOCS / "features.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```(python|toml)\n(.*?)```", text, re.S)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    namespace: dict[str, Any] = {}
+    written = run = 0
+    for k, (language, block) in enumerate(blocks):
+        if m := re.match(r"# file: (\S+)\n", block):
+            (tmp_path / m.group(1)).parent.mkdir(parents=True, exist_ok=True)
+            (tmp_path / m.group(1)).write_text(block, encoding="utf-8")
+            written += 1
+        elif language == "python":
+            exec(compile(block, f"features.md:python[{k}]", "exec"), namespace)  # noqa: S102
+            run += 1
+    assert (written, run) == (2, 2)
+    assert namespace["learner"].weights[namespace["task"].task_index] > 1.0
+
+
 def test_the_command_line_page_has_every_command() -> None:
     from phri.cli import build_parser
 

@@ -23,8 +23,9 @@ segment), so write ``value`` (and ``gradient``) over a batch ``q`` of shape (M, 
 
 ``Robot.frame_pose(frame, q)`` and ``Robot.jacobian(frame, q)`` take the whole (M, n) batch.
 Without ``gradient``, phri takes central finite differences of ``value`` (one more call, 2·M·n
-rows); without ``hessian`` (M, n, n), the optimiser's curvature comes from finite differences of
-the gradient, made positive semidefinite until the solve settles (see docs/features.md).
+rows); without ``hessian`` (M, n, n), the optimiser takes finite differences of the gradient
+when it asks for exact curvature, near the end of a solve; its first, convex phase takes no
+curvature from the feature (see docs/features.md).
 
 A feature that raises, returns the wrong shape or a non-finite value, or takes longer than its
 ``timeout`` [s] for one call, is a :class:`phri.exceptions.FeatureError` naming it; a replan on

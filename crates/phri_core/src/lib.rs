@@ -20,6 +20,7 @@ pub mod interaction;
 pub mod kinematics;
 pub mod learner;
 pub mod model;
+mod pose;
 pub mod reference;
 pub mod safety;
 pub mod scene;

@@ -8,13 +8,12 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use nalgebra::{IsometryMatrix3, Matrix3, Rotation3, Translation3, Unit, Vector3};
+use nalgebra::{Matrix3, Unit, Vector3};
 
-use crate::collision::CollisionModel;
+use crate::collision::bodies::CollisionModel;
 use crate::error::{PhriError, Result};
-
-/// Rigid transform with a rotation matrix (cheap to apply and to read rotation entries from).
-pub type Transform = IsometryMatrix3<f64>;
+use crate::pose::urdf_pose;
+pub use crate::pose::{FrameId, Transform};
 
 /// Standard gravity along −z of the base frame [m/s²].
 pub const STANDARD_GRAVITY: f64 = 9.81;
@@ -99,10 +98,6 @@ pub struct Frame {
     pub body_t_frame: Transform,
 }
 
-/// Index of a frame in [`RobotModel::frames`], obtained once by name with [`RobotModel::frame_id`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct FrameId(pub usize);
-
 /// An immutable serial-chain robot.
 #[derive(Debug, Clone)]
 pub struct RobotModel {
@@ -116,35 +111,6 @@ pub struct RobotModel {
     frame_index: HashMap<String, usize>,
     /// Spheres per link, fitted to the URDF's collision geometry (see [`crate::collision`]).
     pub(crate) collision: CollisionModel,
-}
-
-/// A URDF origin (xyz, rpy) as a transform.
-pub(crate) fn urdf_pose(p: &urdf_rs::Pose) -> Transform {
-    let rot = snap_axis_permutation(Rotation3::from_euler_angles(p.rpy[0], p.rpy[1], p.rpy[2]));
-    IsometryMatrix3::from_parts(Translation3::new(p.xyz[0], p.xyz[1], p.xyz[2]), rot)
-}
-
-/// A rotation within 10⁻¹⁵ per entry of a signed permutation (rpy angles that are multiples of
-/// π/2, as in most robot descriptions) becomes exactly that permutation: cos(π/2) is 6·10⁻¹⁷ in
-/// floating point, and exact zeros let forward kinematics skip the product (see `AxisPermutation`).
-fn snap_axis_permutation(r: Rotation3<f64>) -> Rotation3<f64> {
-    let near = |v: f64| {
-        if v.abs() < 1e-15 {
-            Some(0.0)
-        } else if (v.abs() - 1.0).abs() < 1e-15 {
-            Some(v.signum())
-        } else {
-            None
-        }
-    };
-    let mut m = *r.matrix();
-    for v in m.iter_mut() {
-        match near(*v) {
-            Some(s) => *v = s,
-            None => return r,
-        }
-    }
-    Rotation3::from_matrix_unchecked(m)
 }
 
 /// A rotation whose columns are signed base axes: column k is `sign[k]`·e_`axis[k]`, so R·P has
@@ -389,7 +355,9 @@ impl RobotModel {
     }
 }
 
-fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Result<RobotModel> {
+/// A URDF's links by name, each link's parent joint and each link's child joints, and its root
+/// link; an error unless the links and joints form one tree.
+fn tree(robot: &urdf_rs::Robot) -> Result<(Links<'_>, ParentJoints<'_>, ChildJoints<'_>, &str)> {
     let links: HashMap<&str, &urdf_rs::Link> = robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
     if links.len() != robot.links.len() {
         let mut seen = std::collections::HashSet::new();
@@ -437,6 +405,18 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
             });
         }
     }
+    Ok((links, parent_joint, children, roots[0]))
+}
+
+/// A URDF's links by name.
+type Links<'a> = HashMap<&'a str, &'a urdf_rs::Link>;
+/// Each link's parent joint, by the link's name.
+type ParentJoints<'a> = HashMap<&'a str, &'a urdf_rs::Joint>;
+/// Each link's child joints, by the link's name.
+type ChildJoints<'a> = HashMap<&'a str, Vec<&'a urdf_rs::Joint>>;
+
+fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Result<RobotModel> {
+    let (links, parent_joint, children, root) = tree(robot)?;
     robot.links.iter().try_for_each(check_link)?;
     robot.joints.iter().try_for_each(check_joint)?;
     let known = || {
@@ -450,7 +430,7 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
         name: name.into(),
         known: known(),
     };
-    let base = base.unwrap_or(roots[0]);
+    let base = base.unwrap_or(root);
     if !links.contains_key(base) {
         return Err(unknown("base", base));
     }
@@ -492,42 +472,7 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
         for j in children.get(name).map(Vec::as_slice).unwrap_or(&[]) {
             let origin = body_t_link * urdf_pose(&j.origin);
             if on_path.contains(j.name.as_str()) && is_movable(j) {
-                let kind = match j.joint_type {
-                    urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => JointKind::Revolute,
-                    urdf_rs::JointType::Prismatic => JointKind::Prismatic,
-                    ref other => {
-                        return Err(PhriError::Urdf {
-                            arg: "urdf".into(),
-                            reason: format!("joint '{}' has type {other:?}; only revolute, continuous, prismatic and fixed joints are supported on the chain", j.name),
-                        })
-                    }
-                };
-                let axis = Vector3::new(j.axis.xyz[0], j.axis.xyz[1], j.axis.xyz[2]);
-                if !(axis.norm() > 1e-12) || axis.iter().any(|v| !v.is_finite()) {
-                    return Err(PhriError::Urdf {
-                        arg: "urdf".into(),
-                        reason: format!("joint '{}' has a zero or invalid axis", j.name),
-                    });
-                }
-                let continuous = matches!(j.joint_type, urdf_rs::JointType::Continuous);
-                let (lower, upper) = if continuous { (f64::NEG_INFINITY, f64::INFINITY) } else { (j.limit.lower, j.limit.upper) };
-                if !continuous && !(lower <= upper) {
-                    return Err(PhriError::Urdf {
-                        arg: "urdf".into(),
-                        reason: format!("joint '{}' has lower limit {lower} above upper limit {upper}", j.name),
-                    });
-                }
-                joints.push(Joint {
-                    name: j.name.clone(),
-                    kind,
-                    parent_t_joint: origin,
-                    permutation: AxisPermutation::of(origin.rotation.matrix()),
-                    axis: Unit::new_normalize(axis),
-                    lower,
-                    upper,
-                    velocity_limit: j.limit.velocity,
-                    effort_limit: j.limit.effort,
-                });
+                joints.push(chain_joint(j, origin)?);
                 bodies.push(BodyInertia::ZERO);
                 stack.push((j.child.link.as_str(), joints.len(), Transform::identity()));
             } else {
@@ -548,6 +493,44 @@ fn build(robot: &urdf_rs::Robot, base: Option<&str>, tip: Option<&str>) -> Resul
         gravity: Vector3::new(0.0, 0.0, -STANDARD_GRAVITY),
         frame_index,
         collision,
+    })
+}
+
+/// The chain joint `j` of the URDF, placed at `origin` in its parent body's frame.
+fn chain_joint(j: &urdf_rs::Joint, origin: Transform) -> Result<Joint> {
+    let kind = match j.joint_type {
+        urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => JointKind::Revolute,
+        urdf_rs::JointType::Prismatic => JointKind::Prismatic,
+        ref other => return Err(PhriError::Urdf {
+            arg: "urdf".into(),
+            reason: format!(
+                "joint '{}' has type {other:?}; only revolute, continuous, prismatic and fixed joints are supported on the chain",
+                j.name
+            ),
+        }),
+    };
+    let axis = Vector3::new(j.axis.xyz[0], j.axis.xyz[1], j.axis.xyz[2]);
+    if !(axis.norm() > 1e-12) || axis.iter().any(|v| !v.is_finite()) {
+        return Err(PhriError::Urdf { arg: "urdf".into(), reason: format!("joint '{}' has a zero or invalid axis", j.name) });
+    }
+    let continuous = matches!(j.joint_type, urdf_rs::JointType::Continuous);
+    let (lower, upper) = if continuous { (f64::NEG_INFINITY, f64::INFINITY) } else { (j.limit.lower, j.limit.upper) };
+    if !continuous && !(lower <= upper) {
+        return Err(PhriError::Urdf {
+            arg: "urdf".into(),
+            reason: format!("joint '{}' has lower limit {lower} above upper limit {upper}", j.name),
+        });
+    }
+    Ok(Joint {
+        name: j.name.clone(),
+        kind,
+        parent_t_joint: origin,
+        permutation: AxisPermutation::of(origin.rotation.matrix()),
+        axis: Unit::new_normalize(axis),
+        lower,
+        upper,
+        velocity_limit: j.limit.velocity,
+        effort_limit: j.limit.effort,
     })
 }
 

@@ -42,6 +42,13 @@ def _names(text: str) -> tuple[str, ...]:
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Adds ``study``, ``report``, ``questionnaire`` and ``calibrate`` to `subparsers`."""
+    _add_study(subparsers)
+    _add_report(subparsers)
+    _add_calibrate(subparsers)
+    _add_questionnaire(subparsers)
+
+
+def _add_study(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     s = subparsers.add_parser(
         "study",
         help="run (or resume) the simulated user study into a folder",
@@ -121,6 +128,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
                       "fraction of its rated speed (default 0.1)")  # fmt: skip
     s.set_defaults(run=cmd_study)
 
+
+def _add_report(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     r = subparsers.add_parser(
         "report",
         help="statistics, figures and a Markdown report of a study folder",
@@ -148,6 +157,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     r.set_defaults(run=cmd_report)
 
+
+def _add_calibrate(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     c = subparsers.add_parser(
         "calibrate",
         help="fit a population of simulated participants to reference statistics",
@@ -180,6 +191,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     c.add_argument("--no-progress", action="store_true", help="no progress bar (shown only on a terminal)")
     c.set_defaults(run=cmd_calibrate)
 
+
+def _add_questionnaire(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     q = subparsers.add_parser(
         "questionnaire",
         help="ask or import the Table 1 questionnaire",

@@ -7,9 +7,15 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::Sphere;
 use crate::error::{check_finite, PhriError, Result};
-use crate::model::Transform;
+use crate::pose::Transform;
+
+/// A ball of `radius` [m] centred at `center`, in its body's frame [m].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sphere {
+    pub center: Vector3<f64>,
+    pub radius: f64,
+}
 
 /// Largest radius of a sphere covering a cylinder or capsule, as a multiple of its radius [1].
 /// 1.1 puts the spheres at most 0.92 radii apart along the axis and overestimates the side by at

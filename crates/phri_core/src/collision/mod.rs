@@ -7,14 +7,16 @@
 //! the pairs that are in contact in every pose (a link and its neighbour at their joint, a base
 //! standing on its table), and measures the pairs' distances and their gradients in q.
 
+pub(crate) mod bodies;
 mod checker;
 pub mod distance;
 pub mod fit;
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 
+pub use bodies::{CollisionBody, CollisionModel};
 pub use checker::{CollisionChecker, Near, Other, ProximityScratch, Violation, SELF_BAND, SELF_MARGIN};
-pub use fit::Primitive;
+pub use fit::{Primitive, Sphere};
 
 use crate::data::RobotData;
 use crate::error::{check_finite, PhriError, Result};
@@ -26,100 +28,7 @@ use crate::scene::Scene;
 /// spheres in 9 bodies, a fitted box at most 64).
 pub const MAX_BODY_SPHERES: usize = 1024;
 
-/// A ball of `radius` [m] centred at `center`, in its body's frame [m].
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sphere {
-    pub center: Vector3<f64>,
-    pub radius: f64,
-}
-
-/// One rigid collision body: a link's spheres (or a carried object's), fixed to `frame`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CollisionBody {
-    /// The link's name (or the carried object's).
-    pub name: String,
-    /// The frame the spheres' centres are given in.
-    pub frame: FrameId,
-    pub spheres: Vec<Sphere>,
-    /// A sphere enclosing all of them (a quick test before the spheres).
-    bound: Sphere,
-}
-
-impl CollisionBody {
-    fn new(name: String, frame: FrameId, spheres: Vec<Sphere>) -> Self {
-        let center = spheres.iter().map(|s| s.center).sum::<Vector3<f64>>() / spheres.len().max(1) as f64;
-        let radius = spheres.iter().map(|s| (s.center - center).norm() + s.radius).fold(0.0, f64::max);
-        CollisionBody { name, frame, spheres, bound: Sphere { center, radius } }
-    }
-}
-
-/// The collision bodies of a robot, and the links whose geometry could not be fitted.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct CollisionModel {
-    bodies: Vec<CollisionBody>,
-    /// (link, why) for each link with collision geometry phri cannot fit (meshes).
-    unfitted: Vec<(String, String)>,
-}
-
 impl CollisionModel {
-    pub fn bodies(&self) -> &[CollisionBody] {
-        &self.bodies
-    }
-
-    /// The links whose collision geometry has no spheres, with the reason.
-    pub fn unfitted(&self) -> &[(String, String)] {
-        &self.unfitted
-    }
-
-    /// Whether collisions can be checked: some bodies, and none left unfitted.
-    pub fn is_complete(&self) -> bool {
-        !self.bodies.is_empty() && self.unfitted.is_empty()
-    }
-
-    /// Why collisions cannot be checked, if they cannot (for a typed error).
-    pub fn incomplete_reason(&self, robot: &str) -> Option<String> {
-        if let Some((link, why)) = self.unfitted.first() {
-            return Some(format!(
-                "robot '{robot}' has no collision spheres for link '{link}': its collision geometry is {why}; give its spheres (with_collision_spheres)"
-            ));
-        }
-        self.bodies.is_empty().then(|| {
-            format!("robot '{robot}' has no collision model (its URDF has no <collision> geometry); give spheres per link (with_collision_spheres)")
-        })
-    }
-
-    /// Adds the spheres of `link`'s URDF collision elements, placed by `frame_t_link` (the
-    /// link's pose in `frame`).
-    pub(crate) fn add_urdf_link(&mut self, link: &urdf_rs::Link, frame: FrameId, frame_t_link: &Transform) -> Result<()> {
-        let mut spheres = Vec::new();
-        for c in &link.collision {
-            match fit::from_urdf(&c.geometry) {
-                Ok(shape) => {
-                    let pose = frame_t_link * crate::model::urdf_pose(&c.origin);
-                    spheres.extend(fit::fit(&shape, &pose).map_err(|e| PhriError::Urdf {
-                        arg: "urdf".into(),
-                        reason: format!("link '{}' has collision geometry that {e}", link.name),
-                    })?);
-                }
-                Err(why) => self.unfitted.push((link.name.clone(), why)),
-            }
-        }
-        if !spheres.is_empty() {
-            self.set(link.name.clone(), frame, spheres);
-        }
-        Ok(())
-    }
-
-    /// Sets body `name`'s spheres (replacing a body of that name and its unfitted entry).
-    pub(crate) fn set(&mut self, name: String, frame: FrameId, spheres: Vec<Sphere>) {
-        self.unfitted.retain(|(link, _)| *link != name);
-        let body = CollisionBody::new(name, frame, spheres);
-        match self.bodies.iter_mut().find(|b| b.name == body.name) {
-            Some(b) => *b = body,
-            None => self.bodies.push(body),
-        }
-    }
-
     /// The smallest signed distance [m] of every body to every object of `scene` (bodies × objects,
     /// row-major; negative: overlapping) after forward kinematics into `data`.
     pub fn scene_distances(&self, robot: &RobotModel, data: &RobotData, scene: &Scene, out: &mut [f64]) -> Result<()> {
@@ -213,7 +122,7 @@ impl RobotModel {
                         reason: format!("joint '{}' of an attached object must be fixed", j.name),
                     });
                 }
-                pose = crate::model::urdf_pose(&j.origin) * pose;
+                pose = crate::pose::urdf_pose(&j.origin) * pose;
                 current = j.parent.link.as_str();
             }
             attached.add_urdf_link(link, frame, &pose)?;

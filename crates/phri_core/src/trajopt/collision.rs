@@ -10,7 +10,7 @@
 //! curve at [`CHECK_SAMPLES`] points per segment ([`executed_worst`]), and `buffer` covers both the
 //! penalty's give at an optimum and the cubic's bulge beyond the chords.
 
-use super::cost::Model;
+use super::newton_model::Model;
 use super::params::CollisionParams;
 use crate::collision::{ProximityScratch, Violation};
 use crate::data::RobotData;

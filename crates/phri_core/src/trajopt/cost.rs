@@ -1,6 +1,6 @@
 //! The cost the optimiser minimises: the planning objective w·Φ(ξ) of eq. 4 with the kinked
 //! features Huber-smoothed, plus the clearance penalty ρ·Σ max(0, z_min − z)² and the max_step
-//! penalty; its gradient; and, for the Newton model, its second-order data ([`Model`]).
+//! penalty; its gradient; and, for the Newton model, its second-order data ([`Model`], in `newton_model`).
 //!
 //! The penalties are quadratic so that the cost stays C¹: with ρ = 10³ per m² the optimum violates
 //! a clearance by about w_table/(2ρ) = 5·10⁻⁴ m per unit weight, and the reported `max_violation`
@@ -8,11 +8,11 @@
 
 use nalgebra::{Matrix6xX, Vector3};
 
-use super::block_tridiagonal::BlockTridiagonal;
+use super::newton_model::Model;
 use super::params::Clearance;
 use super::TrajectoryOptimizer;
 use crate::data::RobotData;
-use crate::features::{FeatureSet, Pieces, SecondOrder};
+use crate::features::{FeatureSet, SecondOrder};
 use crate::kinematics::position_hessian;
 
 /// How much of the cost an evaluation computes.
@@ -27,31 +27,6 @@ pub(super) enum Derivatives {
 pub(super) enum Buffer {
     Current,
     Trial,
-}
-
-/// Second-order data of one trajectory for the Newton model.
-#[derive(Debug, Clone)]
-pub(super) struct Model {
-    /// Hessian of the smooth part: features, plus the penalties' curvature terms.
-    pub(super) hess: BlockTridiagonal,
-    /// The share of the gradient of the pieces that are on (N × n).
-    pub(super) pen_grad: Vec<f64>,
-    /// Kinked terms kept out of `hess` and modelled piecewise: every clearance (on or off) and the
-    /// features' inactive hinge samples near their kink.
-    pub(super) pieces: Pieces,
-    /// `hess` includes the kinematics' second derivatives (`KinematicCurvature`).
-    pub(super) exact: bool,
-}
-
-impl Model {
-    pub(super) fn new(n: usize, waypoints: usize) -> Self {
-        Model {
-            hess: BlockTridiagonal::new(n, waypoints),
-            pen_grad: vec![0.0; waypoints * n],
-            pieces: Pieces::new(n),
-            exact: false,
-        }
-    }
 }
 
 /// Kinematics scratch of the penalties.

@@ -34,6 +34,7 @@ mod cost;
 mod levels;
 mod line_search;
 mod newton;
+mod newton_model;
 mod params;
 mod pieces;
 
@@ -46,10 +47,11 @@ use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::features::FeatureSet;
 pub use cancel::Cancellation;
 use collision::CollisionScratch;
-use cost::{Buffer, Derivatives, Model, Scratch};
+use cost::{Buffer, Derivatives, Scratch};
 pub use levels::PlanLevels;
 use levels::{Coarse, LevelsOut, Start};
 use newton::{NewtonWorkspace, SolverState};
+use newton_model::Model;
 pub use params::{
     Clearance, CollisionParams, KinematicCurvature, TrajoptInfo, TrajoptParams, CLEARANCE_TOLERANCE, DEFAULT_COLLISION_BUFFER,
     DEFAULT_COLLISION_SAMPLES, DEFAULT_COLLISION_WEIGHT, MAX_COLLISION_SAMPLES, MAX_ITERATIONS, MAX_TIME, MAX_WAYPOINTS,

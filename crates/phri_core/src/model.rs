@@ -501,13 +501,15 @@ fn chain_joint(j: &urdf_rs::Joint, origin: Transform) -> Result<Joint> {
     let kind = match j.joint_type {
         urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => JointKind::Revolute,
         urdf_rs::JointType::Prismatic => JointKind::Prismatic,
-        ref other => return Err(PhriError::Urdf {
-            arg: "urdf".into(),
-            reason: format!(
+        ref other => {
+            return Err(PhriError::Urdf {
+                arg: "urdf".into(),
+                reason: format!(
                 "joint '{}' has type {other:?}; only revolute, continuous, prismatic and fixed joints are supported on the chain",
                 j.name
             ),
-        }),
+            })
+        }
     };
     let axis = Vector3::new(j.axis.xyz[0], j.axis.xyz[1], j.axis.xyz[2]);
     if !(axis.norm() > 1e-12) || axis.iter().any(|v| !v.is_finite()) {

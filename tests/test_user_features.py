@@ -408,3 +408,21 @@ def test_a_study_with_a_python_feature_runs_resumes_and_reports(tmp_path, capsys
     assert all(float(r["final_weight"]) > 0.1 for r in rows if r["strategy"] == "learning")
     assert phri_main(["report", str(run)]) == 0
     assert (run / "report" / "report.md").is_file()
+
+
+def test_a_declared_distance_is_a_keep_out_circle_like_the_builtin():
+    task = phri.load_task("laptop")
+    robot = phri.Robot.jaco2()
+    (centre, radius) = task.keep_out_circle("laptop")
+    declared = {
+        "name": "mine",
+        "kind": "distance",
+        "object": "laptop",
+        "radius": 0.4,
+        "offset": (0.0, -0.1, 0.0),
+    }
+    circles = phri.Features(robot, ["efficiency", declared], scene=task.scene).keep_out_circles
+    np.testing.assert_allclose(circles["mine"][0], centre, rtol=0, atol=1e-12)
+    assert circles["mine"][1] == radius
+    ball = {**declared, "shape": "sphere"}
+    assert phri.Features(robot, ["efficiency", ball], scene=task.scene).keep_out_circles == {}

@@ -302,9 +302,22 @@ impl PyFeatures {
         }
         let mut circles = Vec::new();
         for (i, spec) in specs.iter().enumerate() {
-            if let (FeatureParams::Keepout(k), Some(scene)) = (&spec.params, &scene) {
-                let c = k.center(&format!("features[{i}]"), &scene.scene).py_err()?;
-                circles.push((spec.name.clone(), (c.x, c.y), k.radius));
+            match (&spec.params, &scene) {
+                (FeatureParams::Keepout(k), Some(scene)) => {
+                    let c = k.center(&format!("features[{i}]"), &scene.scene).py_err()?;
+                    circles.push((spec.name.clone(), (c.x, c.y), k.radius));
+                }
+                // A declared distance on the feature frame, as a cylinder, is a keep-out circle too.
+                (
+                    FeatureParams::Declared(DeclaredSpec::Distance {
+                        frame: None, object, radius, offset, sphere: false, ..
+                    }),
+                    Some(scene),
+                ) => {
+                    let p = scene.scene.require(&format!("features[{i}].object"), object).py_err()?.position();
+                    circles.push((spec.name.clone(), (p.x + offset[0], p.y + offset[1]), *radius));
+                }
+                _ => {}
             }
         }
         let scene = match scene {
@@ -321,7 +334,8 @@ impl PyFeatures {
         self.scene.clone_ref(py)
     }
 
-    /// Each keep-out feature's circle: {name: ((x, y) centre [m], radius [m])}, placed by the scene.
+    /// Each keep-out feature's circle (and each declared `distance` on the feature frame, as a
+    /// cylinder): {name: ((x, y) centre [m], radius [m])}, placed by the scene.
     #[getter]
     fn keep_out_circles<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let out = PyDict::new(py);

@@ -131,7 +131,7 @@ class Participant:
         return self.held
 
     def _judge(self, t: float, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        corrections = self.view.look(q)
+        corrections = self.view.look(q, t)
         now = self.view.pose.copy()
         self.sights.append(Sight(t, now, corrections))
         # Keep the newest look at least `delay` old, and everything after it.

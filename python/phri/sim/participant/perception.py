@@ -32,11 +32,14 @@ import numpy as np
 
 from phri._phri import Robot, TimedTrajectory
 from phri.config import Task
+from phri.exceptions import InvalidParameterError
 
 __all__ = ["Correction", "TaskView"]
 
 #: The desired behaviour is sampled every this many seconds for the person's reference [s].
 REFERENCE_SPACING = 0.05
+#: The person compares with the demonstration's nearest point at most this far from the clock [s].
+MATCH_WINDOW = 1.0
 #: A feature whose pose gradient is below this norm cannot be changed by moving the cup.
 _FLAT = 1e-9
 
@@ -72,7 +75,13 @@ class TaskView:
     """The person's view of `task` executed by `robot`, against the `desired` behaviour (the plan for
     the true weights, as waypoints over the task's duration or a TimedTrajectory)."""
 
-    def __init__(self, task: Task, robot: Robot, desired: TimedTrajectory | np.ndarray) -> None:
+    def __init__(
+        self, task: Task, robot: Robot, desired: TimedTrajectory | np.ndarray, *, window: float = MATCH_WINDOW
+    ) -> None:
+        if not (math.isfinite(window) and window > 0):
+            raise InvalidParameterError(f"window must be a time > 0 s, got {window!r}")
+        #: How far from the clock the compared point of the demonstration may be [s].
+        self.window = window
         self.features = task.feature_set(robot)
         self.robot, self.frame = robot, self.features.frame
         initial, true = task.vector("initial"), task.vector("true")
@@ -102,14 +111,19 @@ class TaskView:
         moves forward while the person looks)."""
         self.progress = 0
 
-    def look(self, q: np.ndarray) -> list[Correction]:
-        """Each watched feature at joint positions `q` [rad], in the order of the task's features."""
+    def look(self, q: np.ndarray, t: float | None = None) -> list[Correction]:
+        """Each watched feature at joint positions `q` [rad] and time `t` [s] since the task began
+        (None: by place alone, anywhere ahead), in the order of the task's features."""
         q = np.asarray(q, dtype=float)
         self.pose = pose = self.robot.frame_pose(self.frame, q)
         if not self.watched:
             return []
-        gaps = self.reference_xy[self.progress :] - pose[:2, 3]
-        self.progress += int(np.argmin(np.einsum("ij,ij->i", gaps, gaps)))
+        first, last = self.progress, len(self.reference_xy) - 1
+        if t is not None:  # only points of the demonstration within `window` of the clock
+            last = min(last, int((t + self.window) / REFERENCE_SPACING))
+            first = min(max(first, math.ceil((t - self.window) / REFERENCE_SPACING)), last)
+        gaps = self.reference_xy[first : last + 1] - pose[:2, 3]
+        self.progress = first + int(np.argmin(np.einsum("ij,ij->i", gaps, gaps)))
         phi, jac = self.features.phi_gradient(np.stack([q, q]))
         jacobian = self.robot.jacobian(self.frame, q)
         index = self.index

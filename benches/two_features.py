@@ -23,11 +23,14 @@ adds up over the parts), and ΔΦ as the learner computed it (its log's ``intera
 Positive sums pull the tilt's weight down; they are not its net change, since the weight stops at
 its bounds.
 
+--one-at-a-time: people who correct the most visible error first and only it, until it looks fixed,
+then the next (EpisodeConfig.one_at_a_time; HRI 2018); pair it with --rule max.
 --precise: people who push exactly where they mean to (off_axis = 0) without tremor (noise = 0).
 --deformation-gain MU: the learner's μ (EpisodeConfig.deformation_gain), with the learned features'
 steps scaled by phri.Deformation().mu / MU so that the update's first-order step is unchanged.
 
-Usage: python benches/two_features.py [--base table] [--knots 4] [--rule all] [--people 8] [--seeds 3]
+Usage: python benches/two_features.py [--base table] [--knots 4] [--rule all] [--one-at-a-time]
+       [--people 8] [--seeds 3]
        [--precise] [--deformation-gain MU] [--decompose] [--tilt-only]
        (one to four minutes per 48 episodes)
 """
@@ -73,6 +76,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--knots", type=int, default=4, help="plan by this many knots (0: every waypoint)")
     parser.add_argument("--rule", default="all", choices=("all", "max", "confidence"))
+    parser.add_argument(
+        "--one-at-a-time",
+        action="store_true",
+        help="people correct the most visible feature first",
+    )
     parser.add_argument("--people", type=int, default=8)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--precise", action="store_true", help="off_axis = 0 and noise = 0")
@@ -126,7 +134,10 @@ def main() -> None:
                 off, any_stop = {}, False
                 for strategy in ("impedance", "learning"):
                     config = EpisodeConfig(
-                        strategy=strategy, rule=args.rule, deformation_gain=args.deformation_gain
+                        strategy=strategy,
+                        rule=args.rule,
+                        deformation_gain=args.deformation_gain,
+                        one_at_a_time=args.one_at_a_time,
                     )
                     result, error = simulate_episode(task, world, person, config, seed=seed, planner=planner)
                     if error is not None:
@@ -149,6 +160,7 @@ def main() -> None:
     closer = learning < impedance
     print(
         f"{task.name} ({' + '.join(scored)} learned), knots={args.knots}, rule={args.rule}, μ={mu:g}"
+        f"{', one feature at a time' if args.one_at_a_time else ''}"
         f"{', precise people' if args.precise else ''}: {args.people} people × {args.seeds} seeds"
     )
     print(f"pairs kept {len(kept)}, ended in a safety stop {len(stopped)}: {stopped}")

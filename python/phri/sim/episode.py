@@ -111,6 +111,10 @@ class EpisodeConfig:
     detector_bias: tuple[float, ...] | None = None
     #: Update rule: "all" (the paper), "max", or "confidence".
     rule: str = "all"
+    #: The simulated person corrects one feature at a time, the most visible first, until it looks
+    #: fixed (:class:`~phri.sim.participant.Participant`'s ``one_at_a_time``; HRI 2018). The learner
+    #: that matches them is ``rule="max"``, which moves only the weight whose feature changed most.
+    one_at_a_time: bool = False
     #: Time-series log rate [Hz].
     log_rate: float = 100.0
     #: After a replan the reference blends into the new plan with joint speeds of at most this
@@ -157,6 +161,8 @@ class EpisodeConfig:
             raise fail("sensor_noise", "a finite value >= 0 N·m", self.sensor_noise)
         if self.rule not in RULES:
             raise fail("rule", f"one of {RULES}", self.rule, repr)
+        if not isinstance(self.one_at_a_time, bool):
+            raise fail("one_at_a_time", "True or False", self.one_at_a_time, repr)
         if not 0 <= self.transition_speed <= 1:
             raise fail(
                 "transition_speed", "a fraction of the velocity limits in [0, 1]", self.transition_speed
@@ -481,7 +487,9 @@ def _set_up(
     )
     planner = controls.planner
     desired = TimedTrajectory(planner.desired, task.duration)
-    person = Participant(participant_params, task, model, desired, person_rng, dt=dt)
+    person = Participant(
+        participant_params, task, model, desired, person_rng, dt=dt, one_at_a_time=config.one_at_a_time
+    )
     bias = np.zeros(model.nq) if config.sensor_bias is None else np.asarray(config.sensor_bias, dtype=float)
     return _Parts(
         planner, controls.learner, controls.controller, controls.limits, person, sensor_rng, bias,

@@ -29,8 +29,8 @@ _DEFAULT_SECOND = ("coffee", "coffee")
 
 
 def _moved(obj: SceneObject, shift: np.ndarray) -> SceneObject:
-    args, kwargs = obj.__getnewargs_ex__()
-    args = list(args)
+    given, kwargs = obj.__getnewargs_ex__()
+    args = list(given)
     args[2] = np.asarray(obj.position, dtype=float) + shift
     return SceneObject(*args, **kwargs)
 
@@ -44,7 +44,9 @@ def _on_table(obj: SceneObject, table: SceneObject) -> bool:
     return bool(inside and obj.position[2] >= table.top - 1e-9)
 
 
-def _scene(task: Task, rng: np.random.Generator, move: float, table_height: float) -> tuple[Scene, float, str]:
+def _scene(
+    task: Task, rng: np.random.Generator, move: float, table_height: float
+) -> tuple[Scene, float, str]:
     """The task's scene with objects on the table moved up to `move` [m] in x and y (staying on it)
     and the table with them raised by up to ±`table_height` [m]; the rise [m] and what moved."""
     scene = task.scene
@@ -55,7 +57,7 @@ def _scene(task: Task, rng: np.random.Generator, move: float, table_height: floa
         shift = np.zeros(3)
         if table is not None and (obj.name == TABLE or _on_table(obj, table)):
             shift[2] = rise
-        if table is not None and move > 0 and _on_table(obj, table):
+        if table is not None and table.size is not None and move > 0 and _on_table(obj, table):
             half = np.asarray(table.size[:2]) / 2.0
             low = table.position[:2] - half - obj.position[:2]
             high = table.position[:2] + half - obj.position[:2]
@@ -146,7 +148,11 @@ def vary(
     The returned task keeps the name; its ``title`` says what changed and its ``source`` that it
     was varied. Raises PlanningError if none of `attempts` draws is feasible."""
     for name, value in (("move", move), ("table_height", table_height), ("pose", pose)):
-        if isinstance(value, bool) or not isinstance(value, int | float) or not (math.isfinite(value) and value >= 0):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not (math.isfinite(value) and value >= 0)
+        ):
             raise InvalidParameterError(f"{name} must be a finite number >= 0, got {value!r}")
     if isinstance(attempts, bool) or not isinstance(attempts, int) or attempts < 1:
         raise InvalidParameterError(f"attempts must be an integer >= 1, got {attempts!r}")
@@ -161,4 +167,6 @@ def vary(
             last = e
             continue
         return varied
-    raise PlanningError(f"vary: none of {attempts} variations of task '{task.name}' is feasible; the last: {last}")
+    raise PlanningError(
+        f"vary: none of {attempts} variations of task '{task.name}' is feasible; the last: {last}"
+    )

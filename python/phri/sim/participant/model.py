@@ -79,7 +79,13 @@ class Participant:
 
     `rng` is the person's own random stream (tremor, how they aim). `dt` [s] is the control period the
     loop calls :meth:`wrench` at; the person re-judges at ``params.rate`` and holds their push in
-    between. For a second or later attempt pass ``params.for_attempt(attempt)``."""
+    between. For a second or later attempt pass ``params.for_attempt(attempt)``.
+
+    With several watched features the person corrects every one still wrong in the same push (their
+    moves add up); with `one_at_a_time` they correct the most visible error first (the largest in
+    units of their tolerance), only it until it looks fixed, and then the next, as the participants
+    of Bajcsy et al., "Learning from Physical Human Corrections, One Feature at a Time" (HRI 2018)
+    were asked to."""
 
     def __init__(
         self,
@@ -90,13 +96,20 @@ class Participant:
         rng: np.random.Generator,
         dt: float = 1e-3,
         hand: str | None = None,
+        *,
+        one_at_a_time: bool = False,
     ) -> None:
         hand = hand or robot.hand_frame
         if hand is None:
             raise InvalidParameterError(f"hand: robot '{robot.name}' declares no hand frame; pass hand=")
         if not (math.isfinite(dt) and dt > 0):
             raise InvalidParameterError(f"dt must be a control period > 0 s, got {dt!r}")
+        if not isinstance(one_at_a_time, bool):
+            raise InvalidParameterError(f"one_at_a_time must be True or False, got {one_at_a_time!r}")
         self.params, self.robot, self.hand, self.dt = params, robot, hand, dt
+        self.one_at_a_time = one_at_a_time
+        #: With `one_at_a_time`: the index (in the watched features) of the one being corrected.
+        self.focus: int | None = None
         self.period = 1.0 / params.rate
         self.view = TaskView(task, robot, desired)
         self.arm = HumanArm(params, rng, self.period)
@@ -139,14 +152,17 @@ class Participant:
             self.sights.popleft()
         seen = self.sights[0]
         errors = self.errors(seen.corrections)
+        release = self.params.release
+        if self.one_at_a_time:
+            errors = self._focus_on(errors, seen.corrections)
         visible = any(e > 1.0 and c.fixable for e, c in zip(errors, seen.corrections, strict=True))
-        fixed = all(e < self.params.release for e in errors)
+        fixed = all(e < release for e in errors)
         if not self.persistence.update(t, visible, fixed):
             return self.arm.push(None)
         # Several features at once: the moves of every feature still wrong add up.
         move = np.zeros(6)
         for e, c in zip(errors, seen.corrections, strict=True):
-            if e >= self.params.release and c.fixable:
+            if e >= release and c.fixable:
                 move += c.move
         expected = self.expected(t)
         lag = np.concatenate([expected[:3, 3] - now[:3, 3], _rotation_between(expected[:3, :3], now[:3, :3])])
@@ -155,6 +171,21 @@ class Participant:
             felt = _velocity(self.sights[-2], self.sights[-1])
             lag += self.params.delay * (_velocity(self.sights[0], self.sights[1]) - felt)
         return self.arm.push(move, lag)
+
+    def _focus_on(self, errors: list[float], corrections: list[Correction]) -> list[float]:
+        """`errors` with every feature but the one in focus seen as right: the focus stays until it
+        looks fixed (below ``release``) or cannot be fixed by a push, then moves to the most visible
+        error left (above 1), if any."""
+        k = self.focus
+        if k is not None and (errors[k] < self.params.release or not corrections[k].fixable):
+            k = None
+        if k is None:
+            wrong = [
+                i for i, (e, c) in enumerate(zip(errors, corrections, strict=True)) if e > 1.0 and c.fixable
+            ]
+            k = max(wrong, key=lambda i: errors[i]) if wrong else None
+        self.focus = k
+        return [e if i == k else 0.0 for i, e in enumerate(errors)]
 
     def expected(self, t: float) -> np.ndarray:
         """Where the person expects the cup to be at `t` [s] (4×4, world frame): where they saw it

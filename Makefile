@@ -6,7 +6,7 @@ DEPS   := $(VENV)/.deps-installed
 BUILT  := $(VENV)/.ext-built
 CARGO_SOURCES := $(shell find crates -name '*.rs' -o -name Cargo.toml) Cargo.toml
 
-.PHONY: help dev wheel docs demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-trajopt-work bench-python bench-push bench-features bench-episode clean
+.PHONY: help dev wheel docs demo test test-rust test-python lint bench bench-peers bench-trajopt-peers bench-trajopt-work bench-python bench-push bench-features bench-episode bench-variations clean
 
 help:  ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-20s %s\n", $$1, $$2}'
@@ -91,6 +91,9 @@ bench-features: $(BUILT)  ## Time cold plans with a feature declared or written 
 
 bench-episode: $(BUILT)  ## Time simulated 15 s episodes against real time
 	$(PY) benches/episode.py
+
+bench-variations: $(BUILT)  ## The simulated person on 30 random variations of each task (a fresh seed; SEED=... to rerun)
+	$(PY) benches/variations.py $(if $(SEED),--seed $(SEED))
 
 clean:
 	cargo clean

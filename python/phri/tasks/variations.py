@@ -1,10 +1,10 @@
 """Variations of a task, for tests and for checking a study off the paper's exact scenes.
 
-``phri.tasks.vary(task, rng)`` moves what lies on the table within reach, raises or lowers the table
-(with what lies on it and the tool's box), turns the start and goal poses a little, and optionally
-adds a second learned feature, then checks the result is a task the study can run: the plans for the
-true and the initial weights keep the arm clear and converge, within the joint limits and the
-tool's box. A draw that fails is drawn again; after ``attempts`` draws a PlanningError says why the
+``phri.tasks.vary(task, rng)`` moves what lies on the table within reach and the person beside it,
+raises or lowers the table (with what lies on it and the tool's box), turns the start and goal poses
+a little, and optionally adds a second learned feature, then checks the result is a task the study
+can run: the plans for the true and the initial weights keep the arm clear and converge, within the
+joint limits and the tool's box. A draw that fails is drawn again; after ``attempts`` draws a PlanningError says why the
 last one failed.
 """
 
@@ -47,8 +47,9 @@ def _on_table(obj: SceneObject, table: SceneObject) -> bool:
 def _scene(
     task: Task, rng: np.random.Generator, move: float, table_height: float
 ) -> tuple[Scene, float, str]:
-    """The task's scene with objects on the table moved up to `move` [m] in x and y (staying on it)
-    and the table with them raised by up to ±`table_height` [m]; the rise [m] and what moved."""
+    """The task's scene with objects on the table moved up to `move` [m] in x and y (staying on it),
+    the table with them raised by up to ±`table_height` [m] and a person moved up to `move` in x and
+    y; the rise [m] and what moved."""
     scene = task.scene
     table = scene.get(TABLE)
     rise = float(rng.uniform(-table_height, table_height)) if table is not None and table_height > 0 else 0.0
@@ -62,6 +63,9 @@ def _scene(
             low = table.position[:2] - half - obj.position[:2]
             high = table.position[:2] + half - obj.position[:2]
             shift[:2] = np.clip(rng.uniform(-move, move, 2), low, high)
+            said.append(f"{obj.name} moved by ({shift[0]:+.2f}, {shift[1]:+.2f}) m")
+        elif obj.kind == "person" and move > 0:  # standing elsewhere beside the table
+            shift[:2] = rng.uniform(-move, move, 2)
             said.append(f"{obj.name} moved by ({shift[0]:+.2f}, {shift[1]:+.2f}) m")
         objects.append(_moved(obj, shift) if shift.any() else obj)
     if rise:
@@ -142,7 +146,7 @@ def vary(
     attempts: int = 50,
 ) -> Task:
     """A feasible variation of `task` drawn with `rng`: each object lying on the table moved by up
-    to `move` [m] in x and y (uniform, staying on the table), the table and what is on it raised or
+    to `move` [m] in x and y (uniform, staying on the table) and each person by as much, the table and what is on it raised or
     lowered by up to `table_height` [m] (the tool box's floor with it), each joint of the start and the
     goal turned by up to `pose` [rad]; with `second`, a second learned feature (SECOND_FEATURE).
     The returned task keeps the name; its ``title`` says what changed and its ``source`` that it

@@ -89,11 +89,13 @@ def test_a_second_learned_feature_is_learned_from_zero() -> None:
         owner, feature = SECOND_FEATURE.get(task.task_feature, ("coffee", "coffee"))
         added = both.features[-1]
         assert added.name == feature and added.learned and added.initial == 0.0
-        assert added.true == phri.load_task(owner).vector("true")[phri.load_task(owner).feature_names.index(feature)]
+        source = phri.load_task(owner)
+        assert added.true == source.vector("true")[source.feature_names.index(feature)]
         assert f"'{feature}' learned too" in both.title
         assert both.task_feature == task.task_feature
     with pytest.raises(InvalidParameterError, match="second: task 'table' already has feature 'coffee'"):
-        vary(vary(phri.load_task("table"), np.random.default_rng(1), second=True), np.random.default_rng(1), second=True)
+        both = vary(phri.load_task("table"), np.random.default_rng(1), second=True)
+        vary(both, np.random.default_rng(1), second=True)
 
 
 def test_bad_variation_settings_are_clear_errors() -> None:
@@ -109,8 +111,9 @@ def test_bad_variation_settings_are_clear_errors() -> None:
             vary(task, rng, **kwargs)
     with pytest.raises(InvalidParameterError, match="rng must be a numpy.random.Generator, got int"):
         vary(task, 3)  # type: ignore[arg-type]
-    # A task no variation of which is feasible (5 s for the table task's motion is too fast).
-    with pytest.raises(PlanningError, match=r"none of 2 variations of task 'table' is feasible; the last: .*duration"):
+    # A task no variation of which is feasible (2 s for the table task's motion is too fast).
+    infeasible = r"none of 2 variations of task 'table' is feasible; the last: .*duration"
+    with pytest.raises(PlanningError, match=infeasible):
         vary(dataclasses.replace(task, duration=2.0), rng, attempts=2)
 
 
@@ -119,7 +122,8 @@ def test_unvaried_is_the_task_itself() -> None:
     same = vary(task, np.random.default_rng(0), move=0.0, table_height=0.0, pose=0.0)
     assert same.title == "unchanged"
     np.testing.assert_array_equal(same.start, task.start)
-    assert [o.position.tolist() for o in same.scene.objects] == [o.position.tolist() for o in task.scene.objects]
+    positions = [o.position.tolist() for o in task.scene.objects]
+    assert [o.position.tolist() for o in same.scene.objects] == positions
 
 
 # -- the person off the paper's scene -------------------------------------------------------------------

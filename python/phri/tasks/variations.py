@@ -4,8 +4,8 @@
 raises or lowers the table (with what lies on it and the tool's box), turns the start and goal poses
 a little, and optionally adds a second learned feature, then checks the result is a task the study
 can run: the plans for the true and the initial weights keep the arm clear and converge, within the
-joint limits and the tool's box. A draw that fails is drawn again; after ``attempts`` draws a PlanningError says why the
-last one failed.
+joint limits and the tool's box. A draw that fails is drawn again; after ``attempts`` draws a
+PlanningError says why the last one failed.
 """
 
 from __future__ import annotations
@@ -146,9 +146,10 @@ def vary(
     attempts: int = 50,
 ) -> Task:
     """A feasible variation of `task` drawn with `rng`: each object lying on the table moved by up
-    to `move` [m] in x and y (uniform, staying on the table) and each person by as much, the table and what is on it raised or
-    lowered by up to `table_height` [m] (the tool box's floor with it), each joint of the start and the
-    goal turned by up to `pose` [rad]; with `second`, a second learned feature (SECOND_FEATURE).
+    to `move` [m] in x and y (uniform, staying on the table) and each person by as much, the table
+    and what is on it raised or lowered by up to `table_height` [m] (the tool box's floor with it),
+    each joint of the start and the goal turned by up to `pose` [rad]; with `second`, a second
+    learned feature (SECOND_FEATURE).
     The returned task keeps the name; its ``title`` says what changed and its ``source`` that it
     was varied. Raises PlanningError if none of `attempts` draws is feasible."""
     for name, value in (("move", move), ("table_height", table_height), ("pose", pose)):

@@ -18,7 +18,8 @@ exceeds the desired plan's by more than --wrong (20 %). Checked:
   behaviour's task cost (|cost − desired cost|, averaged over the people).
 
 Episodes that end in a safety stop are counted, and each is printed with its cause (the safety
-layer doing its job; they are kept in the averages, as the study keeps them).
+layer doing its job; they are kept in the averages, as the study keeps them). An episode that ends
+in any other error fails the bench.
 
 Usage: python benches/variations.py [--seed S] [--variations 30] [--people 6] [--tasks coffee,...]
        [--second] [--rule all] [--one-at-a-time] [--workers 2] [--verbose]
@@ -69,8 +70,10 @@ class Outcome:
     effort: dict[str, list[float]]
     interaction_time: dict[str, list[float]]
     cost: dict[str, list[float]]
-    #: The episodes that ended early: person, strategy and why.
+    #: The episodes the safety layer stopped: person, strategy and why.
     stopped: list[str]
+    #: The episodes that ended in an error other than a safety stop (a bug): person, strategy, error.
+    failed: list[str]
 
     @property
     def stops(self) -> int:
@@ -120,6 +123,7 @@ def run_variation(
     interaction: dict[str, list[float]] = {s: [] for s in STRATEGIES}
     cost: dict[str, list[float]] = {s: [] for s in STRATEGIES}
     stopped: list[str] = []
+    failed: list[str] = []
     with World() as world:
         planner = Planner(task, world)
         initial = planner.optimizer.solve(task.vector("initial"), task.start, task.goal)[0]
@@ -135,11 +139,10 @@ def run_variation(
                     seed=episode_seed(seed, p, strategy, label, 1),
                     planner=planner,
                 )
-                if error is not None or result.stop is not None:
-                    why = (
-                        result.stop.message if result.stop is not None else f"{type(error).__name__}: {error}"
-                    )
-                    stopped.append(f"person {p}, {strategy}: {why}")
+                if result.stop is not None:
+                    stopped.append(f"person {p}, {strategy}: {result.stop.message}")
+                elif error is not None:
+                    failed.append(f"person {p}, {strategy}: {type(error).__name__}: {error}")
                 effort[strategy].append(result.effort)
                 interaction[strategy].append(result.interaction_time)
                 cost[strategy].append(result.cost)
@@ -153,6 +156,7 @@ def run_variation(
         interaction,
         cost,
         stopped,
+        failed,
     )
 
 
@@ -188,6 +192,8 @@ class Checks:
     #: With two learned features: in how many of the variations with a push learning ended closer.
     learning_closer: int
     stops: int
+    #: Episodes that ended in an error other than a safety stop.
+    failures: int
 
     @property
     def push_share(self) -> float:
@@ -212,6 +218,7 @@ def check(outcomes: Sequence[Outcome]) -> Checks:
         learning_better=sum(o.learning_better for o in pushed),
         learning_closer=sum(o.learning_closer for o in pushed),
         stops=sum(o.stops for o in outcomes),
+        failures=sum(len(o.failed) for o in outcomes),
     )
 
 
@@ -288,9 +295,11 @@ def main() -> int:
     for o in outcomes:
         for why in o.stopped:
             print(f"stopped: {o.task}~{o.variation}, {why}")
+        for why in o.failed:
+            print(f"FAILED: {o.task}~{o.variation}, {why}")
     print(report(outcomes, tasks))
     c = check(outcomes)
-    ok = c.push_share >= PUSH_SHARE and c.better_share >= BETTER_SHARE
+    ok = c.push_share >= PUSH_SHARE and c.better_share >= BETTER_SHARE and c.failures == 0
     if args.second:
         ok = ok and c.closer_share >= BETTER_SHARE
     print(

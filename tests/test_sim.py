@@ -119,8 +119,11 @@ def test_learning_takes_less_effort_and_time_and_ends_closer_to_the_desired_cost
 @pytest.mark.slow
 def test_after_a_replan_the_arm_keeps_within_its_velocity_limits(world, planners, tmp_path) -> None:
     """The reference blends into each new plan (TimedTrajectory.switch_to), so the arm does not snap
-    onto it; with the original's instant switch its reference jumps, at well over the limits."""
-    person = ParticipantParams.draw(np.random.default_rng(7))
+    onto it; with the original's instant switch its reference jumps, at well over the limits. (A
+    person who teaches the robot something: with the match to the demonstration kept within 1 s of
+    the clock, rng 7's person pushed the instant-switch robot once on the human task and left its
+    weight at 5e-4, so its replans hardly moved the plan.)"""
+    person = ParticipantParams.draw(np.random.default_rng(8))
     limits = world.model.velocity_limits
     for name in ("human", "table", "laptop"):
         task = phri.load_task(name)

@@ -5,6 +5,7 @@ was expected and what was given, and suggest a near match for a misspelt name.""
 from __future__ import annotations
 
 import difflib
+import ipaddress
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -12,16 +13,27 @@ from typing import Any
 
 import numpy as np
 
-from phri.exceptions import ConfigError
+from phri.exceptions import ConfigError, InvalidParameterError
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["Reader", "did_you_mean", "finite", "is_integer", "must_be", "parse_toml", "unknown_key"]
+__all__ = ["Reader", "check_loopback", "did_you_mean", "finite", "is_integer", "must_be", "parse_toml", "unknown_key"]
 
 _NOTHING: Any = object()
+
+
+def check_loopback(host: str) -> str:
+    """`host` if it is a loopback address (127.x.y.z): phri's servers (the FR3 simulator, the replay) serve nowhere else."""
+    try:
+        ok = ipaddress.ip_address(host).is_loopback and ipaddress.ip_address(host).version == 4
+    except ValueError:
+        ok = False
+    if not ok:
+        raise InvalidParameterError(f"host must be a loopback address 127.x.y.z, got {host!r}")
+    return host
 
 
 def must_be(

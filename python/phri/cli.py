@@ -108,6 +108,12 @@ def _run(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _view(args: argparse.Namespace) -> int:
+    from phri.view.cli import run
+
+    return run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``phri`` command's argument parser, with every subcommand."""
     parser = argparse.ArgumentParser(
@@ -148,6 +154,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_run_arguments(run)
     run.set_defaults(run=_run)
+    from phri.view.cli import add_arguments as add_view_arguments
+
+    view = sub.add_parser(
+        "view",
+        help="replay an episode log (or a study's episodes) in the browser: served on loopback, or "
+        "--html writes one offline page",
+    )
+    add_view_arguments(view)
+    view.set_defaults(run=_view)
     from phri.study.cli import register as register_study
 
     register_study(sub)

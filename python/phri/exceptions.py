@@ -12,6 +12,7 @@ __all__ = [
     "ConnectionLostError",
     "FeatureError",
     "InvalidParameterError",
+    "LogError",
     "MissingExtraError",
     "NonFiniteError",
     "NotConvergedError",
@@ -69,6 +70,11 @@ class ReplanWorkerError(PhriError, RuntimeError):
     """The learner's replan worker thread failed: a panic inside phri (a bug to report, with the
     message) or a worker that stopped. Raised once, by the next ``Learner.observe``; the arm kept
     the plan it was tracking and the learner goes on (later corrections replan again)."""
+
+
+class LogError(PhriError, ValueError):
+    """A file given as an episode log (or a study folder) that cannot be read, or is not one phri
+    wrote: not a .npz, damaged, or missing the arrays a replay needs. The message names the file."""
 
 
 class MissingExtraError(PhriError, ImportError):

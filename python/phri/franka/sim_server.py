@@ -26,6 +26,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, TYPE_CHECKING
 
+from phri._validate import check_loopback
 from phri.exceptions import ConfigError, ConnectionLostError, InvalidParameterError
 
 if TYPE_CHECKING:
@@ -44,17 +45,6 @@ START_TIMEOUT = 60.0
 KEPT_LINES = 1000
 #: How long stopping a SimServer waits for the rest of the child's output to be read [s].
 DRAIN_WAIT = 5.0
-
-
-def check_loopback(host: str) -> str:
-    """`host` if it is a loopback address (127.x.y.z): the simulator serves nowhere else."""
-    try:
-        ok = ipaddress.ip_address(host).is_loopback and ipaddress.ip_address(host).version == 4
-    except ValueError:
-        ok = False
-    if not ok:
-        raise InvalidParameterError(f"host must be a loopback address 127.x.y.z, got {host!r}")
-    return host
 
 
 def check_realtime(realtime: object) -> float:

@@ -41,6 +41,7 @@ from phri.atomic import write_atomic
 from phri.config import Task
 from phri.control import Backend, ControlLoop, LoopResult, RobotState, SafetyLimits, StopEvent, safety_limits
 from phri.control.loop import TickHook
+from phri.episode_log import geometry_arrays, nearest_rows
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.backend import PyBulletBackend, steps_per_period
 from phri.sim.participant import Participant, ParticipantParams
@@ -641,15 +642,6 @@ def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndar
     }
 
 
-def _nearest_rows(t: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """For each of `times` [s], the row of the log times `t` (ascending) nearest to it (the earlier
-    of two equally near; the last row for a time past the log's end)."""
-    if len(t) <= 1:
-        return np.zeros(len(times), dtype=int)
-    i = np.clip(np.searchsorted(t, times), 1, len(t) - 1)
-    return i - ((times - t[i - 1]) <= (t[i] - times)).astype(int)
-
-
 def score_episode(
     task: Task,
     model: Robot,
@@ -666,7 +658,7 @@ def score_episode(
     history = _history(learner, initial_weights)
     # The executed path at the plan's waypoint times (the log rows nearest to them: the rows are on
     # the log's time grid but for a tick the robot missed), scored with the same features.
-    idx = _nearest_rows(trace.t[: trace.rows], np.linspace(0, task.duration, task.waypoints))
+    idx = nearest_rows(trace.t[: trace.rows], np.linspace(0, task.duration, task.waypoints))
     executed = trace.series["q"][idx]
     phi = planner.features.phi(executed)
     frame = planner.features.frame
@@ -696,8 +688,15 @@ def score_episode(
         log_arrays={
             "t": trace.t[:rows], **{k: v[:rows] for k, v in trace.series.items()}, **history,
             "desired": planner.desired, "feature_names": np.array(task.feature_names),
+            # φ per segment of the executed path (at the waypoint times) and of the desired one.
+            "segment_phi": planner.features.per_segment(executed),
+            "desired_segment_phi": planner.features.per_segment(planner.desired),
             "distances": distances, "body_names": np.array(model.collision_bodies),
             "object_names": np.array(task.scene.names),
+            # What a replay needs besides the series: the robot's spheres and the scene's objects.
+            **geometry_arrays(
+                model, task.scene, robot=task.robot, task=task.name, strategy=config.strategy, frame=frame
+            ),
             # The safety layer: ticks whose torque (or command rate) it clipped, per joint, and the
             # stop that ended the episode (no row without one).
             "torque_clips": trace.loop.torque_clips, "rate_clips": trace.loop.rate_clips,

@@ -22,7 +22,7 @@ $(DEPS): pyproject.toml | $(PY)
 		"tqdm>=4.66" "ray>=2.9" "pyyaml>=6" "hypothesis>=6.100" "ruff>=0.6" "mypy>=1.10" \
 		"pylibfranka==0.21.3" "franky-sim==1.0.4" \
 		"mkdocs>=1.6" "mkdocs-material>=9.5" "mkdocstrings-python>=1.16" "mkdocs-jupyter>=0.25" "ipykernel>=6" \
-		"latex2mathml>=3.77"
+		"latex2mathml>=3.77" "markdown>=3.5"
 	touch $@
 
 # One release build of the extension serves both the editable install in .venv and the wheel in dist/:

@@ -29,6 +29,7 @@ EXTRA_OF: dict[str, str] = {
     "statsmodels": "study",
     "tqdm": "study",
     "scipy": "study",
+    "markdown": "view",
     "pyarrow": "parquet",
     "ray": "ray",
     "pylibfranka": "franka",
@@ -37,7 +38,7 @@ EXTRA_OF: dict[str, str] = {
 
 #: Extras that install other extras: ``phri[study]`` brings ``phri[sim]`` too.
 INCLUDES: dict[str, tuple[str, ...]] = {
-    "study": ("sim",),
+    "study": ("sim", "view"),
     "franka-sim": ("franka",),
     "all": ("study", "parquet", "ray", "franka-sim"),
 }
@@ -46,7 +47,7 @@ INCLUDES: dict[str, tuple[str, ...]] = {
 NEEDS: dict[str, tuple[str, ...]] = {
     "the demo": ("pybullet", "matplotlib"),
     "a study": ("pybullet", "pandas", "tqdm"),
-    "the report": ("pandas", "statsmodels", "matplotlib"),
+    "the report": ("pandas", "statsmodels", "matplotlib", "markdown"),
     "the questionnaire": ("pandas",),
 }
 

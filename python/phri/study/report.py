@@ -377,6 +377,65 @@ def _log_warnings(run_dir: Path, raw: pd.DataFrame) -> list[str]:
     ]
 
 
+#: The report's replays: one page per episode with a log, sharing the scripts in REPLAYS/viewer.
+REPLAYS = "replays"
+
+
+def _replays(out: Path, run_dir: Path, raw: pd.DataFrame) -> list[str]:
+    """Writes a replay page (:mod:`phri.view`) per recorded episode with a log into
+    ``out/replays``; returns the report's section linking to them."""
+    from phri.exceptions import LogError
+    from phri.view import replay_page, write_scripts
+
+    rows, skipped = [], []
+    (out / REPLAYS).mkdir()
+    for r in raw.sort_values(["participant", "task", "strategy", "attempt"]).itertuples():
+        log = str(r.log) if isinstance(r.log, str) else ""
+        if not log or not (run_dir / log).is_file():
+            continue
+        title = f"participant {r.participant} · {r.task} · {r.strategy} · attempt {r.attempt}"
+        name = Path(log).stem + ".html"
+        try:
+            page = replay_page(run_dir / log, title=title, scripts="viewer")
+        except LogError as e:
+            skipped.append(f"`{log}` ({e})")
+            continue
+        write_atomic(out / REPLAYS / name, page.encode("utf-8"))
+        rows.append(f"| {r.participant} | {r.task} | {r.strategy} | {r.attempt} | {r.status} | "
+                    f"[replay]({REPLAYS}/{name}) |")  # fmt: skip
+    if rows:
+        write_scripts(out / REPLAYS / "viewer")
+    lines = ["## Episode replays", ""]
+    if rows:
+        lines += [
+            "Each episode in 3D, with its plots (`phri view` serves the same pages; "
+            "open one at a time with `?t=SECONDS` after its address).", "",
+            "| participant | task | strategy | attempt | status | |", "|---|---|---|---|---|---|", *rows, "",
+        ]  # fmt: skip
+    else:
+        lines += ["No episode has a log to replay.", ""]
+    if skipped:
+        lines += [f"No replay for {len(skipped)} logs: " + "; ".join(skipped[:3])
+                  + (" ..." if len(skipped) > 3 else ""), ""]  # fmt: skip
+    return lines
+
+
+def _html(text: str) -> str:
+    """The Markdown report `text` as a standalone HTML page (Python-Markdown, with its tables)."""
+    markdown_lib = require("markdown", "the HTML report")
+    body = markdown_lib.markdown(text, extensions=["tables"], output_format="html")
+    return (
+        "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+        "<title>phri study report</title>\n<style>\n"
+        "body { font-family: system-ui, sans-serif; max-width: 60em; margin: 2em auto; padding: 0 1em;"
+        " line-height: 1.45; color: #222; }\n"
+        "table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.92em; }\n"
+        "th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; }\n"
+        "th { background: #f0f3f6; } img { max-width: 100%; } code { background: #f4f4f4; }\n"
+        "</style>\n</head>\n<body>\n" + body + "\n</body>\n</html>\n"
+    )
+
+
 def _warnings_md(warnings: list[str]) -> list[str]:
     """The report's warnings section, if there are warnings."""
     if not warnings:
@@ -614,6 +673,7 @@ def _write(
         *reference_lines,
         *_figures(out, run_dir, config, raw, stats, participant, task),
         *_questionnaire(out, qpath, config),
+        *_replays(out, run_dir, raw),
     ]
     if qpath.exists():
         tables += ["table1.csv", "table1.tex"]
@@ -626,4 +686,6 @@ def _write(
         "folder's `results.csv` (and `results.parquet` where the `phri[parquet]` extra is installed).",
         "",
     ]
-    write_atomic(out / "report.md", "\n".join(lines).encode("utf-8"))
+    text = "\n".join(lines)
+    write_atomic(out / "report.md", text.encode("utf-8"))
+    write_atomic(out / "report.html", _html(text).encode("utf-8"))

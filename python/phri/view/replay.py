@@ -22,7 +22,7 @@ __all__ = ["FRAME_RATE", "PLOT_RATE", "read_log", "replay_data"]
 #: Frames of the 3D replay per second of the episode [Hz].
 FRAME_RATE = 25.0
 #: Samples per second of the plots [Hz].
-PLOT_RATE = 100.0
+PLOT_RATE = 50.0
 #: The series every episode log has, with their shapes (T rows, n joints).
 _SERIES = ("t", "q", "tau", "u_h", "push", "wall_force")
 _REQUIRED = (
@@ -173,7 +173,7 @@ def replay_data(log: Mapping[str, np.ndarray], *, title: str = "") -> dict[str, 
         "title": title or f"{g.task} · {g.strategy}",
         "robot": g.robot, "task": g.task, "strategy": g.strategy, "frame": g.frame,
         "duration": float(t[-1] - t[0]), "t0": float(t[0]),
-        "frames": {"t": _round(t[rows], 3), "spheres": _round(centers, 4), "hand": _round(hand, 4),
+        "frames": {"t": _round(t[rows], 3), "spheres": _round(centers, 3), "hand": _round(hand, 4),
                    "push": _round(push, 2), "wall": _round(wall[rows], 2)},
         "spheres": {"radius": _round(g.sphere_radii, 4),
                     "cup": [bool(b in cup) for b in g.sphere_bodies.tolist()]},

@@ -20,9 +20,14 @@
   const scene = new THREE.Scene();
   const camera = new THREE.PerspectiveCamera(45, 1, 0.01, 50);
   camera.up.set(0, 0, 1); // the robot's base frame: z up
-  camera.position.set(0.9, -1.6, 1.0);
+  // Look at the middle of where the cup goes and the robot's base, from the front right.
+  const box = new THREE.Box3().setFromPoints(
+    frames.hand.concat(data.desired, [[0, 0, 0]]).map(function (p) { return new THREE.Vector3(p[0], p[1], p[2]); }));
+  const target = box.getCenter(new THREE.Vector3());
+  const reach = Math.max(box.getSize(new THREE.Vector3()).length(), 0.6);
+  camera.position.set(target.x + 0.9 * reach, target.y - 1.5 * reach, target.z + 0.9 * reach);
   const controls = new THREE.OrbitControls(camera, renderer.domElement);
-  controls.target.set(-0.35, 0.0, 0.1);
+  controls.target.copy(target);
   controls.update();
   controls.addEventListener("change", render);
   scene.add(new THREE.HemisphereLight(0xffffff, 0x8899aa, 0.75));
@@ -60,6 +65,17 @@
     scene.add(mesh);
   });
 
+  // The robot's stand, from the table's top to its base (as the simulated world has it).
+  data.objects.forEach(function (o) {
+    if (o.name !== "table" || o.shape !== "box") return;
+    const top = o.pose[2][3] + o.dims[2] / 2;
+    if (top >= 0) return;
+    const stand = new THREE.Mesh(new THREE.BoxBufferGeometry(0.16, 0.16, -top),
+                                 new THREE.MeshLambertMaterial({ color: 0x4d4d4d }));
+    stand.position.set(0, 0, top / 2);
+    scene.add(stand);
+  });
+
   // The robot: one sphere mesh per collision sphere, moved at each frame.
   const armMat = new THREE.MeshLambertMaterial({ color: 0xff7f0e });
   const cupMat = new THREE.MeshLambertMaterial({ color: 0x2a6fdb });
@@ -91,6 +107,7 @@
   });
   const trail = path(frames.hand, 0x333333, false); // where the cup went, drawn up to now
   const arrow = new THREE.ArrowHelper(new THREE.Vector3(1, 0, 0), new THREE.Vector3(), 0.1, 0xd62728, 0.04, 0.025);
+  [arrow.line, arrow.cone].forEach(function (m) { m.material.depthTest = false; m.renderOrder = 10; });
   scene.add(arrow);
 
   // --- the plots ----------------------------------------------------------------------------
@@ -216,7 +233,7 @@
       const hand = frames.hand[f];
       arrow.position.set(hand[0], hand[1], hand[2]);
       arrow.setDirection(new THREE.Vector3(F[0] / mag, F[1] / mag, F[2] / mag));
-      arrow.setLength(Math.min(0.02 + 0.01 * mag, 0.4), 0.04, 0.025); // 1 cm per newton
+      arrow.setLength(Math.min(0.02 + 0.02 * mag, 0.6), 0.04, 0.025); // 2 cm per newton
     }
     slider.value = String(now - data.t0);
     label.textContent = (now - data.t0).toFixed(2) + " / " + data.duration.toFixed(2) + " s";

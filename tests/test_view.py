@@ -29,7 +29,9 @@ def log_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     task = load_task("laptop")
     path = tmp_path_factory.mktemp("view") / "laptop_learning.npz"
     with World(scene=task.scene) as world:
-        run_episode(task, world, ParticipantParams(), EpisodeConfig(strategy="learning"), seed=3, log_path=path)
+        run_episode(
+            task, world, ParticipantParams(), EpisodeConfig(strategy="learning"), seed=3, log_path=path
+        )
     return path
 
 
@@ -74,7 +76,7 @@ def test_bad_logs_are_typed_errors_naming_the_file(tmp_path: Path, log_path: Pat
 def test_the_page_is_self_contained(tmp_path: Path, log_path: Path) -> None:
     out = write_replay(log_path, tmp_path / "replay.html")
     text = out.read_text(encoding="utf-8")
-    assert "src=\"http" not in text and "href=\"http" not in text
+    assert 'src="http' not in text and 'href="http' not in text
     assert "<script src=" not in text  # every script inline
     with pytest.raises(FileExistsError):
         write_replay(log_path, out)
@@ -110,7 +112,7 @@ def test_chromium_shows_the_arm_and_the_scene_and_the_arm_moves(tmp_path: Path, 
     view = slice(40, 650), slice(0, 700)  # the 3D view, left of the plots
 
     def mask(img: np.ndarray, rgb: tuple[int, int, int], tol: float = 0.12) -> np.ndarray:
-        return (np.abs(img[view] - np.array(rgb) / 255).max(axis=2) < tol)
+        return np.abs(img[view] - np.array(rgb) / 255).max(axis=2) < tol
 
     arm_a, arm_b = mask(early, (255, 127, 14), 0.2), mask(late, (255, 127, 14), 0.2)
     table = mask(early, (200, 162, 122), 0.15)

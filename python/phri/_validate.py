@@ -20,13 +20,23 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["Reader", "check_loopback", "did_you_mean", "finite", "is_integer", "must_be", "parse_toml", "unknown_key"]
+__all__ = [
+    "Reader",
+    "check_loopback",
+    "did_you_mean",
+    "finite",
+    "is_integer",
+    "must_be",
+    "parse_toml",
+    "unknown_key",
+]
 
 _NOTHING: Any = object()
 
 
 def check_loopback(host: str) -> str:
-    """`host` if it is a loopback address (127.x.y.z): phri's servers (the FR3 simulator, the replay) serve nowhere else."""
+    """`host` if it is a loopback address (127.x.y.z): phri's servers (the FR3 simulator, the replay)
+    serve nowhere else."""
     try:
         ok = ipaddress.ip_address(host).is_loopback and ipaddress.ip_address(host).version == 4
     except ValueError:

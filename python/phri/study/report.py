@@ -425,7 +425,7 @@ def _html(text: str) -> str:
     markdown_lib = require("markdown", "the HTML report")
     body = markdown_lib.markdown(text, extensions=["tables"], output_format="html")
     return (
-        "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+        '<!doctype html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
         "<title>phri study report</title>\n<style>\n"
         "body { font-family: system-ui, sans-serif; max-width: 60em; margin: 2em auto; padding: 0 1em;"
         " line-height: 1.45; color: #222; }\n"

@@ -39,7 +39,9 @@ def episodes(
         found = select(study_episodes(path), participant=participant, task=task, strategy=strategy,
                        attempt=attempt)  # fmt: skip
         if not found:
-            raise LogError(f"{path}: no episode with a log matches {_choices(participant, task, strategy, attempt)}")
+            raise LogError(
+                f"{path}: no episode with a log matches {_choices(participant, task, strategy, attempt)}"
+            )
         return found
     if any(x is not None for x in (participant, task, strategy, attempt)):
         raise LogError(f"{path}: --participant, --task, --strategy and --attempt choose in a study folder, "

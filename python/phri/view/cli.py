@@ -19,6 +19,7 @@ DEFAULT_PORT = 8765
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``phri view``'s arguments to `parser`."""
     parser.add_argument("path", type=Path, help="an episode log (.npz) or a study folder")
     pick = parser.add_argument_group("choosing in a study folder (any, if left out)")
     pick.add_argument("--participant", type=int, help="the participant (1-based)")
@@ -33,6 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``phri view``: write the page with ``--html``, else serve until Ctrl-C; returns the exit code."""
     found = episodes(args.path, participant=args.participant, task=args.task, strategy=args.strategy,
                      attempt=args.attempt)  # fmt: skip
     if args.html is not None:
@@ -43,7 +45,9 @@ def run(args: argparse.Namespace) -> int:
         try:
             out = write_replay(log_path, args.html, title=title, overwrite=args.force)
         except FileExistsError:
-            raise InvalidParameterError(f"{args.html} exists: choose another OUT, or --force to replace it") from None
+            raise InvalidParameterError(
+                f"{args.html} exists: choose another OUT, or --force to replace it"
+            ) from None
         print(f"wrote {out}")
         return 0
     server = ReplayServer(_pages(found), host=args.host, port=args.port)

@@ -83,7 +83,8 @@ def _round(a: Any, digits: int = 4) -> Any:
     a = np.round(np.asarray(a, dtype=float), digits)
     if np.isfinite(a).all():
         return a.tolist()
-    return np.where(np.isfinite(a), a, None).tolist()
+    out: list[Any] = np.where(np.isfinite(a), a, None).tolist()  # type: ignore[attr-defined]
+    return out
 
 
 def _positions(robot: Robot, frame: str, q: np.ndarray) -> np.ndarray:
@@ -131,7 +132,8 @@ def replay_data(log: Mapping[str, np.ndarray], *, title: str = "") -> dict[str, 
          "series": [{"name": f"joint {j + 1}", "y": _round(np.asarray(log["tau"])[prow, j], 3)}
                     for j in range(robot.nq)]},
         {"title": "person's force at the cup [N]", "t": _round(t[prow], 3),
-         "series": [{"name": "|F|", "y": _round(np.linalg.norm(np.asarray(log["push"])[prow, :3], axis=1), 3)}]},
+         "series": [{"name": "|F|",
+                     "y": _round(np.linalg.norm(np.asarray(log["push"])[prow, :3], axis=1), 3)}]},
     ]  # fmt: skip
     weights_t, weights = np.asarray(log["weights_t"], float), np.asarray(log["weights"], float)
     if len(weights_t):
@@ -167,8 +169,8 @@ def replay_data(log: Mapping[str, np.ndarray], *, title: str = "") -> dict[str, 
     stop = None
     if "stop_t" in log and len(log["stop_t"]):
         stop = {"t": float(np.asarray(log["stop_t"]).reshape(-1)[0]),
-                "reason": str(np.asarray(log["stop_reason"]).reshape(-1)[0]) if len(log["stop_reason"]) else "",
-                "message": str(np.asarray(log["stop_message"]).reshape(-1)[0]) if len(log["stop_message"]) else ""}  # fmt: skip
+                "reason": _first_str(log["stop_reason"]),
+                "message": _first_str(log["stop_message"])}  # fmt: skip
     return {
         "title": title or f"{g.task} · {g.strategy}",
         "robot": g.robot, "task": g.task, "strategy": g.strategy, "frame": g.frame,
@@ -180,8 +182,15 @@ def replay_data(log: Mapping[str, np.ndarray], *, title: str = "") -> dict[str, 
         "objects": [{"name": o.name, "shape": o.shape, "kind": o.kind, "pose": _round(o.pose, 5),
                      "dims": _round(o.dims, 5)} for o in g.objects],
         "desired": _round(desired, 4),
-        "plans": {"t": _round(np.asarray(log["plan_t"], float), 3), "paths": [_round(p, 4) for p in plan_paths]},
+        "plans": {"t": _round(np.asarray(log["plan_t"], float), 3),
+                  "paths": [_round(p, 4) for p in plan_paths]},
         "interactions": _round(np.asarray(log["interaction_t"], float), 3),
         "plots": plots,
         "stop": stop,
     }  # fmt: skip
+
+
+def _first_str(values: Any) -> str:
+    """The first of a logged string array, or "" when it is empty."""
+    flat = np.asarray(values).reshape(-1)
+    return str(flat[0]) if len(flat) else ""

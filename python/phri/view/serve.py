@@ -38,26 +38,31 @@ class ReplayServer:
 
     @property
     def address(self) -> tuple[str, int]:
+        """The (host, port) bound: the port the system chose when 0 was asked for."""
         host, port = self._server.server_address[:2]
         return str(host), int(port)
 
     @property
     def url(self) -> str:
+        """The address of the root page, ``http://host:port/``."""
         host, port = self.address
         return f"http://{host}:{port}/"
 
     def start(self) -> ReplayServer:
+        """Serve in a background thread until :meth:`stop`; returns the server."""
         self._thread = threading.Thread(target=self._server.serve_forever, name="phri-view", daemon=True)
         self._thread.start()
         return self
 
     def serve_forever(self) -> None:
+        """Serve in this thread until interrupted (KeyboardInterrupt), then close the socket."""
         try:
             self._server.serve_forever()
         finally:
             self._server.server_close()
 
     def stop(self) -> None:
+        """Stop the background thread, if any, and close the socket."""
         if self._thread is not None:
             self._server.shutdown()
             self._thread.join()

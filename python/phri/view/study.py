@@ -33,6 +33,7 @@ class StudyEpisode:
 
     @property
     def title(self) -> str:
+        """How the episode is named on its page: participant, task, strategy and attempt."""
         return f"participant {self.participant} · {self.task} · {self.strategy} · attempt {self.attempt}"
 
 

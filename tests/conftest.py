@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import importlib.resources
 import os
+import subprocess
+import sys
+import textwrap
 
 # Ray instances the tests start listen on loopback only (the house rule; see
 # phri.study.parallel.RAY_LOCAL_ONLY_ENV): Ray reads this when it is imported.
@@ -99,3 +102,26 @@ def load_pybullet() -> Iterator[Callable[[str | Path], PyBulletRobot]]:
 def pybullet_jaco2(load_pybullet: Callable[[str | Path], PyBulletRobot]) -> PyBulletRobot:
     """The shipped JACO2 URDF in PyBullet: (client id, body id, {link name: link index}, movable joints)."""
     return load_pybullet(jaco2_urdf_path())
+
+
+# -- a Python without some modules -----------------------------------------------------------------
+
+BLOCKER = """
+import importlib.abc, sys
+BLOCKED = set(sys.argv[1].split(","))
+class Refuse(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] in BLOCKED:
+            raise ModuleNotFoundError(f"No module named {name!r} (blocked)", name=name)
+        return None
+sys.meta_path.insert(0, Refuse())
+"""
+
+
+def run_without(blocked: set[str], code: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """Runs `code` in a fresh interpreter in which the modules `blocked` cannot be imported."""
+    script = BLOCKER + textwrap.dedent(code)
+    return subprocess.run(
+        [sys.executable, "-c", script, ",".join(sorted(blocked))],
+        cwd=cwd, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip

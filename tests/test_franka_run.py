@@ -28,6 +28,7 @@ from fake_arm import FakeArm
 
 import phri
 from phri import Robot
+from phri.cli import main as cli
 from phri.config import load_task
 from phri.control import LATE_AFTER, RobotState, safety_limits
 from phri.exceptions import ConfigError, ConnectionLostError, PlanningError, SafetyStopError
@@ -35,6 +36,7 @@ from phri.franka.episode import FrankaEpisode
 from phri.franka.move import MOVE_SPEED, plan_move
 from phri.franka.sim_server import SimServer
 from phri.sim.episode import VELOCITY_MARGIN, EpisodeConfig, make_learner, replan_settings
+from phri.view import read_log, replay_data
 
 pytest.importorskip("pylibfranka", reason="phri[franka] is part of make dev")
 pytest.importorskip("franky_sim", reason="phri[franka-sim] is part of make dev")
@@ -392,6 +394,13 @@ def test_a_fault_of_the_robot_stops_the_episode_with_a_complete_log(
         assert str(saved["stop_message"][0]) == stop.message and len(saved["t"]) == len(log["t"])
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["stop"]["reason"] == "robot_fault" and summary["completed"] is False
+    # `phri view` opens the FR3's log as it opens a simulated one: the FR3's spheres, the stop.
+    replay = replay_data(read_log(written.log))
+    assert replay["robot"] == "fr3" and replay["stop"]["reason"] == "robot_fault"
+    fr3 = Robot.fr3()
+    spheres = sum(len(fr3.collision_spheres(b)[1]) for b in fr3.collision_bodies)
+    assert len(replay["spheres"]["radius"]) == spheres == len(replay["frames"]["spheres"][0])
+    assert cli(["view", str(written.log), "--html", str(tmp_path / "replay.html")]) == 0
     # The next episode recovers the robot (automatic_error_recovery) and moves it back.
     again = run_episode(faults_server, task, "impedance")
     assert again.error is None and again.move is not None  # type: ignore[attr-defined]

@@ -8,12 +8,12 @@ import os
 import re
 import subprocess
 import sys
-import textwrap
 import zipfile
 from pathlib import Path
 
 import pytest
 import yaml
+from conftest import run_without
 
 import phri
 from phri import _extras
@@ -164,30 +164,9 @@ def test_check_lists_every_missing_module_and_the_fewest_extras(monkeypatch: pyt
 
 
 #: Installs a finder that refuses the modules named in sys.argv[1] (as if not installed).
-BLOCKER = """
-import importlib.abc, sys
-BLOCKED = set(sys.argv[1].split(","))
-class Refuse(importlib.abc.MetaPathFinder):
-    def find_spec(self, name, path=None, target=None):
-        if name.partition(".")[0] in BLOCKED:
-            raise ModuleNotFoundError(f"No module named {name!r} (blocked)", name=name)
-        return None
-sys.meta_path.insert(0, Refuse())
-"""
-
-
-def _without(blocked: set[str], code: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    """Runs `code` in a fresh interpreter in which the modules `blocked` cannot be imported."""
-    script = BLOCKER + textwrap.dedent(code)
-    return subprocess.run(
-        [sys.executable, "-c", script, ",".join(sorted(blocked))],
-        cwd=cwd, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-
-
 def test_the_core_and_the_cli_work_with_numpy_only(tmp_path: Path) -> None:
     heavy = {*_extras.EXTRA_OF, "scipy"}
-    done = _without(heavy, """
+    done = run_without(heavy, """
         import sys
         import numpy as np
         import phri
@@ -203,7 +182,7 @@ def test_the_core_and_the_cli_work_with_numpy_only(tmp_path: Path) -> None:
         plan, info = optimizer.solve(task.vector("true"), task.start, task.goal)
         assert plan.shape == (task.waypoints, 7)
         for argv in (["tasks"], ["study", "s", "--no-progress"], ["report", "s"], ["demo", "--out", "d"],
-                     ["questionnaire", "s", "--import", "a.csv"]):
+                     ["questionnaire", "s", "--import", "a.csv"], ["view", "no-such-log.npz"]):
             print("exit", argv[0], main(argv), file=sys.stderr)
         loaded = sorted(m for m in sys.modules if m.partition(".")[0] in set(sys.argv[1].split(",")))
         print("loaded", loaded)
@@ -219,7 +198,8 @@ def test_the_core_and_the_cli_work_with_numpy_only(tmp_path: Path) -> None:
     )
     assert "exit study 2" in err and not (tmp_path / "s").exists()
     assert (
-        "phri report: error: the report needs pandas, statsmodels, matplotlib, which are not installed: "
+        "phri report: error: the report needs pandas, statsmodels, matplotlib, markdown, which are not "
+        "installed: "
         "pip install 'phri[study]'" in err
     )
     assert (
@@ -230,7 +210,8 @@ def test_the_core_and_the_cli_work_with_numpy_only(tmp_path: Path) -> None:
         "phri questionnaire: error: the questionnaire needs pandas, which is not installed: "
         "pip install 'phri[study]'" in err
     )
-    for command in ("report", "demo", "questionnaire"):
+    assert "phri view: error: no-such-log.npz" in err
+    for command in ("report", "demo", "questionnaire", "view"):
         assert f"exit {command} 2" in err
     assert "Traceback" not in err
 
@@ -239,7 +220,7 @@ def test_the_core_and_the_cli_work_with_numpy_only(tmp_path: Path) -> None:
 def test_a_study_without_parquet_and_its_progress_bar_off_a_terminal(tmp_path: Path) -> None:
     """Without phri[parquet] a study keeps results.csv only; off a terminal no progress bar is drawn
     (no carriage returns in a log) although none was turned off."""
-    done = _without({"pyarrow", "ray"}, """
+    done = run_without({"pyarrow", "ray"}, """
         from phri.cli import main
         raise SystemExit(main(["study", "s", "--participants", "1", "--attempts", "1", "--tasks", "laptop",
                                "--duration", "8", "--waypoints", "4", "--knots", "0", "--backend", "serial",
@@ -312,7 +293,8 @@ def test_the_library_does_not_print() -> None:
             for n in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
         )
     )
-    assert set(printing) <= {"cli.py", "study/cli.py", "franka/run.py", "franka/sim_server.py"}, printing
+    commands = {"cli.py", "study/cli.py", "view/cli.py", "franka/run.py", "franka/sim_server.py"}
+    assert set(printing) <= commands, printing
 
 
 def test_hostile_command_lines_are_clear_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -10,8 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_without
 
 from phri import load_task
+from phri._extras import EXTRA_OF
 from phri._phri import Robot
 from phri.cli import main
 from phri.exceptions import InvalidParameterError, LogError
@@ -80,6 +82,19 @@ def test_the_page_is_self_contained(tmp_path: Path, log_path: Path) -> None:
     assert "<script src=" not in text  # every script inline
     with pytest.raises(FileExistsError):
         write_replay(log_path, out)
+
+
+def test_the_viewer_needs_no_extra(tmp_path: Path, log_path: Path) -> None:
+    """Without any extra (numpy only), ``phri view`` writes the page: three.js is bundled."""
+    done = run_without({*EXTRA_OF, "scipy"}, f"""
+        import sys
+        from phri.cli import main
+        print("exit", main(["view", {str(log_path)!r}, "--html", "replay.html"]))
+        print("loaded", sorted(m for m in sys.modules if m.partition(".")[0] in set(sys.argv[1].split(","))))
+    """, tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "exit 0" in done.stdout and "loaded []" in done.stdout, done.stdout
+    assert (tmp_path / "replay.html").stat().st_size > 100_000
 
 
 def test_the_server_listens_on_loopback_only(log_path: Path) -> None:

@@ -4,6 +4,8 @@ that works offline) or beside shared copies of the scripts (the study report's r
 
 from __future__ import annotations
 
+import base64
+import gzip
 import json
 from importlib import resources
 from pathlib import Path
@@ -21,9 +23,11 @@ def _static(name: str) -> str:
     return resources.files("phri.view").joinpath("static", name).read_text(encoding="utf-8")
 
 
-def _json(data: dict[str, Any]) -> str:
-    """`data` as JSON safe inside a <script> element (no "</" can close it)."""
-    return json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
+def _packed(data: dict[str, Any]) -> str:
+    """`data` as the page holds it: JSON, gzip-compressed (a fifth of the size) and base64-encoded
+    (nothing in it can close its <script> element). The same data gives the same page (mtime 0)."""
+    text = json.dumps(data, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    return base64.b64encode(gzip.compress(text, compresslevel=9, mtime=0)).decode("ascii")
 
 
 def page_html(data: dict[str, Any], *, scripts: str | None = None) -> str:
@@ -35,7 +39,7 @@ def page_html(data: dict[str, Any], *, scripts: str | None = None) -> str:
         base = scripts.rstrip("/")
         tags = "\n".join(f'<script src="{base}/{s}"></script>' for s in SCRIPTS)
     template = _static("viewer.html")
-    return template.replace("{{DATA}}", _json(data)).replace("{{SCRIPTS}}", tags)
+    return template.replace("{{DATA}}", _packed(data)).replace("{{SCRIPTS}}", tags)
 
 
 def write_scripts(folder: Path) -> None:

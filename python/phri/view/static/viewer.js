@@ -2,9 +2,28 @@
 // and the plan being followed, the person's push as an arrow at the cup, and plots sharing one time
 // cursor. Reads the replay from <script id="replay-data">; uses three.js (global THREE) only.
 // URL: ?t=SECONDS (or #t=SECONDS) opens the replay at that time, paused.
+// The replay data is JSON, gzip-compressed and base64-encoded (a fifth of the size: a study report
+// holds one page per episode); DecompressionStream unpacks it (Chrome 80, Firefox 113, Safari 16.4).
 (function () {
   "use strict";
-  const data = JSON.parse(document.getElementById("replay-data").textContent);
+  const packed = document.getElementById("replay-data").textContent.trim();
+  function fail(message) {
+    const view = document.getElementById("view");
+    view.textContent = "phri view: " + message;
+    view.style.padding = "2em";
+    document.body.dataset.error = message;
+  }
+  if (typeof DecompressionStream === "undefined") {
+    fail("this browser cannot unpack the replay (it needs DecompressionStream: Chrome 80, Firefox 113, " +
+         "Safari 16.4 or later).");
+    return;
+  }
+  const bytes = Uint8Array.from(atob(packed), function (c) { return c.charCodeAt(0); });
+  new Response(new Blob([bytes]).stream().pipeThrough(new DecompressionStream("gzip"))).text()
+    .then(function (text) { start(JSON.parse(text)); })
+    .catch(function (e) { fail("the replay data is damaged (" + e + ")."); });
+
+function start(data) {
   const frames = data.frames;
   const nFrames = frames.t.length;
   const COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2"];
@@ -280,4 +299,5 @@
   show(data.t0 + (isFinite(start) ? start : 0));
   window.phriReplay = { show: show, frames: nFrames, ready: true };
   document.body.dataset.ready = "1";
+}
 })();

@@ -44,8 +44,9 @@ import numpy as np
 
 import phri
 from phri.config import Task
+from phri.episode_log import nearest_rows
 from phri.sim import EpisodeConfig, World
-from phri.sim.episode import Planner, _nearest_rows, simulate_episode
+from phri.sim.episode import Planner, simulate_episode
 from phri.sim.participant import default_population
 from phri.sim.world import HAND
 
@@ -201,7 +202,7 @@ def _decompose(task, log, features, model, deformation, k) -> np.ndarray:
             continue
         plan = log["plans"][max(int(np.searchsorted(log["plan_t"], t, side="right")) - 1, 0)]
         index = min(int(t / spacing + 1e-9), n - 1)  # the learner's waypoint: the one at or before t
-        q = log["q"][_nearest_rows(log["t"], np.array([t]))[0]]
+        q = log["q"][nearest_rows(log["t"], np.array([t]))[0]]
         jacobian = model.jacobian(HAND, q)
         wrench = np.linalg.solve(jacobian @ jacobian.T, jacobian @ u_h)
         gradient = features.phi_gradient(plan)[1][k]

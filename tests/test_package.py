@@ -352,11 +352,13 @@ def test_the_wheel_is_abi3_manylinux2014_stripped_complete_and_runs_the_demo_in_
         z.extract(extension, tmp_path)
         metadata = z.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
     # The robot descriptions, the task files, the stubs and the typing marker ship inside it.
-    data = (".urdf", ".toml", ".pyi", ".typed")
+    data = (".urdf", ".toml", ".pyi", ".typed", ".js", ".html")
     shipped = {p.relative_to(ROOT / "python").as_posix() for p in PACKAGE.rglob("*")
                if p.is_file() and (p.suffix in data or p.name == "NOTICE")}  # fmt: skip
     assert {"phri/robots/jaco2/j2s7s300.urdf", "phri/robots/fr3/fr3.urdf", "phri/tasks/table.toml",
-            "phri/py.typed", "phri/_phri.pyi"} <= shipped <= names, sorted(shipped - names)  # fmt: skip
+            "phri/py.typed", "phri/_phri.pyi", "phri/view/static/three.min.js",
+            "phri/view/static/viewer.html"} <= shipped <= names, sorted(shipped - names)  # fmt: skip
+    assert "phri/view/static/LICENSE-three.txt" in names
     # Stripped: no symbol table left in the extension.
     sections = subprocess.run(["readelf", "-S", "-W", str(tmp_path / extension)], capture_output=True,
                               text=True, timeout=60, check=True).stdout  # fmt: skip
@@ -384,3 +386,9 @@ def test_the_wheel_is_abi3_manylinux2014_stripped_complete_and_runs_the_demo_in_
     rows = [line.split()[:2] for line in demo.stdout.splitlines()[2:]]
     assert rows == [[t, s] for t in ("human", "coffee", "table", "laptop") for s in ("impedance", "learning")]
     assert len(list((tmp_path / "out").glob("path_*.png"))) == 4
+    # The viewer's page, from the installed wheel's files, of a log the demo wrote.
+    view = subprocess.run([str(venv / "bin" / "phri"), "view", "out/logs/laptop_learning.npz", "--html",
+                           "replay.html"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
+    assert view.returncode == 0, view.stderr
+    assert 'REVISION="111"' in (tmp_path / "replay.html").read_text(encoding="utf-8")

@@ -8,6 +8,7 @@ import errno
 import hashlib
 import json
 import os
+import re
 import shlex
 import shutil
 import signal
@@ -957,6 +958,16 @@ def test_report(reference: Path, tmp_path: Path) -> None:
         tex = (tmp_path / "report" / f"{name}.tex").read_text()
         assert tex.startswith("\\begin{tabular}") and tex.isascii(), name
         assert f"`{name}.tex`" in text
+    # The same report as HTML beside it, linking each episode to its replay page.
+    page = (tmp_path / "report" / "report.html").read_text()
+    assert "<table>" in page and '<img alt="' in page and 'src="fig4_effort_time.png"' in page
+    links = re.findall(r'href="(replays/[^"]+[.]html)"', page)
+    assert len(links) == len(load_results(reference)) and len(set(links)) == len(links)
+    assert all((tmp_path / "report" / link).is_file() for link in links)
+    replay = (tmp_path / "report" / links[0]).read_text()
+    assert '<script src="viewer/viewer.js"></script>' in replay
+    assert (tmp_path / "report" / "replays" / "viewer" / "three.min.js").is_file()
+    assert "## Episode replays" in text and "(replays/" in text
     # TINY's rate and log rate, not fixed numbers; its 2 participants are too few to test.
     assert "sampled at 10 Hz" in text and "from the episode logs (100 Hz)" in text
     assert "## Warnings" in text and "The study has 2 participant(s), fewer than 3: too few to test" in text
@@ -1039,6 +1050,8 @@ def test_report_survives_damaged_logs_and_refuses_foreign_rows(reference: Path, 
     md = write_report(run_dir).read_text()
     assert "is damaged" in md and str(sample["log"].iloc[0]) in md
     assert "1 of the 16 recorded episodes have no log" in md and gone in md
+    assert "No replay for 1 log:" in md  # the damaged one; the missing one has no row to link
+    assert len(list((run_dir / "report" / "replays").glob("*.html"))) == 14
     assert "## Statistics" in md or "ANOVA" in md
     assert not stale.exists()
     # A duplicated row and a foreign one: the report refuses them as a resume would.

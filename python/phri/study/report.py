@@ -415,8 +415,11 @@ def _replays(out: Path, run_dir: Path, raw: pd.DataFrame) -> list[str]:
     else:
         lines += ["No episode has a log to replay.", ""]
     if skipped:
-        lines += [f"No replay for {len(skipped)} logs: " + "; ".join(skipped[:3])
-                  + (" ..." if len(skipped) > 3 else ""), ""]  # fmt: skip
+        logs = f"{len(skipped)} log" + ("s" if len(skipped) != 1 else "")
+        lines += [
+            f"No replay for {logs}: " + "; ".join(skipped[:3]) + (" ..." if len(skipped) > 3 else ""),
+            "",
+        ]
     return lines
 
 

@@ -38,7 +38,8 @@ def check_loopback(host: str) -> str:
     """`host` if it is a loopback address (127.x.y.z): phri's servers (the FR3 simulator, the replay)
     serve nowhere else."""
     try:
-        ok = ipaddress.ip_address(host).is_loopback and ipaddress.ip_address(host).version == 4
+        address = ipaddress.ip_address(host)
+        ok = address.version == 4 and address.is_loopback
     except ValueError:
         ok = False
     if not ok:

@@ -385,26 +385,27 @@ def _replays(out: Path, run_dir: Path, raw: pd.DataFrame) -> list[str]:
     """Writes a replay page (:mod:`phri.view`) per recorded episode with a log into
     ``out/replays``; returns the report's section linking to them."""
     from phri.exceptions import LogError
-    from phri.view import replay_page, write_scripts
+    from phri.view import StudyEpisode, replay_page, write_scripts
 
+    scripts = "viewer"  # the pages' shared scripts, in REPLAYS/viewer
     rows, skipped = [], []
     (out / REPLAYS).mkdir()
     for r in raw.sort_values(["participant", "task", "strategy", "attempt"]).itertuples():
         log = str(r.log) if isinstance(r.log, str) else ""
         if not log or not (run_dir / log).is_file():
             continue
-        title = f"participant {r.participant} · {r.task} · {r.strategy} · attempt {r.attempt}"
-        name = Path(log).stem + ".html"
+        e = StudyEpisode(int(r.participant), str(r.task), str(r.strategy), int(r.attempt), str(r.status),
+                         (run_dir / log).resolve())  # fmt: skip
         try:
-            page = replay_page(run_dir / log, title=title, scripts="viewer")
-        except LogError as e:
-            skipped.append(f"`{log}` ({e})")
+            page = replay_page(e.log, title=e.title, scripts=scripts)
+        except LogError as err:
+            skipped.append(f"`{log}` ({err})")
             continue
-        write_atomic(out / REPLAYS / name, page.encode("utf-8"))
-        rows.append(f"| {r.participant} | {r.task} | {r.strategy} | {r.attempt} | {r.status} | "
-                    f"[replay]({REPLAYS}/{name}) |")  # fmt: skip
+        write_atomic(out / REPLAYS / f"{e.name}.html", page.encode("utf-8"))
+        rows.append(f"| {e.participant} | {e.task} | {e.strategy} | {e.attempt} | {e.status} | "
+                    f"[replay]({REPLAYS}/{e.name}.html) |")  # fmt: skip
     if rows:
-        write_scripts(out / REPLAYS / "viewer")
+        write_scripts(out / REPLAYS / scripts)
     lines = ["## Episode replays", ""]
     if rows:
         lines += [

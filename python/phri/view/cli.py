@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         if isinstance(found, list) and len(found) > 1:
             names = ", ".join(e.name for e in found[:6])
             raise _many(len(found), names)
-        log_path, title = (found, "") if isinstance(found, Path) else (found[0].log, found[0].title)
+        log_path, title = _one(found)
         try:
             out = write_replay(log_path, args.html, title=title, overwrite=args.force)
         except FileExistsError:
@@ -59,6 +59,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _one(found: list[StudyEpisode] | Path) -> tuple[Path, str]:
+    """The log and page title of a single episode: a log given as it is, or a study's first match."""
+    return (found, "") if isinstance(found, Path) else (found[0].log, found[0].title)
+
+
 def _many(count: int, names: str) -> Exception:
     return LogError(
         f"{count} episodes match ({names}{', ...' if count > 6 else ''}): --html writes one; choose with "
@@ -68,13 +73,11 @@ def _many(count: int, names: str) -> Exception:
 
 def _pages(found: list[StudyEpisode] | Path):  # type: ignore[no-untyped-def]
     """The server's pages: the log at /, or the study's list at / and each episode at /episode/NAME."""
-    if isinstance(found, Path):
-        page = replay_page(found)  # made once: a bad log is an error before serving
+    if isinstance(found, Path) or len(found) == 1:
+        log_path, title = _one(found)
+        page = replay_page(log_path, title=title)  # made once: a bad log is an error before serving
         return lambda path: page if path in ("/", "/index.html") else None
     by_name = {e.name: e for e in found}
-    if len(found) == 1:
-        only = replay_page(found[0].log, title=found[0].title)
-        return lambda path: only if path in ("/", "/index.html") else None
 
     def pages(path: str) -> str | None:
         if path in ("/", "/index.html"):

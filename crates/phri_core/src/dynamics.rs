@@ -33,6 +33,48 @@ impl RobotModel {
         check_result("qd", tau)
     }
 
+    /// Forward dynamics q̈ = M(q)⁻¹(τ − C(q, q̇)q̇ − g(q)) [rad/s²] for joint efforts `tau` [N·m],
+    /// into `qdd`: the composite-rigid-body mass matrix (into the work matrix `mass`, n × n) and its
+    /// Cholesky factor, with the Newton–Euler bias. The step of a simulator integrating the arm
+    /// (PyBullet's is semi-implicit Euler on the same equation). Allocates nothing.
+    pub fn forward_dynamics(
+        &self,
+        q: &[f64],
+        qd: &[f64],
+        tau: &[f64],
+        data: &mut RobotData,
+        mass: &mut DMatrix<f64>,
+        qdd: &mut [f64],
+    ) -> Result<()> {
+        let n = self.nq();
+        check_vector("q", q, n)?;
+        check_vector("qd", qd, n)?;
+        check_vector("tau", tau, n)?;
+        check_len("qdd", qdd, n)?;
+        if mass.shape() != (n, n) {
+            return Err(PhriError::shape("mass", format!("({n}, {n})"), format!("{:?}", mass.shape())));
+        }
+        self.forward_kinematics_unchecked(q, data);
+        self.rnea_after_fk(qd, None, true, data, qdd); // the bias C(q, q̇)q̇ + g(q)
+        check_result("qd", qdd)?;
+        for (a, t) in qdd.iter_mut().zip(tau) {
+            *a = t - *a;
+        }
+        self.mass_matrix_after_fk(data, mass);
+        // Cholesky in place: nalgebra's factor owns its matrix, so the work matrix is moved in and back.
+        let work = std::mem::replace(mass, DMatrix::zeros(0, 0));
+        let Some(factor) = work.cholesky() else {
+            return Err(PhriError::invalid(
+                "q",
+                "gives a mass matrix that is not positive definite (check the model's inertias)",
+            ));
+        };
+        let mut rhs = nalgebra::DVectorViewMut::from_slice(qdd, n);
+        factor.solve_mut(&mut rhs);
+        *mass = factor.unpack();
+        check_result("tau", qdd)
+    }
+
     /// Coriolis and centrifugal efforts C(q, q̇)q̇ [N·m], without gravity.
     pub fn coriolis(&self, q: &[f64], qd: &[f64], data: &mut RobotData, tau: &mut [f64]) -> Result<()> {
         let n = self.nq();

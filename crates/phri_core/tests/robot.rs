@@ -165,6 +165,25 @@ proptest! {
     }
 
     #[test]
+    fn forward_dynamics_inverts_inverse_dynamics(
+        u in prop::collection::vec(0.0..1.0f64, 7),
+        qd in prop::collection::vec(-1.0..1.0f64, 7),
+        qdd in prop::collection::vec(-2.0..2.0f64, 7),
+    ) {
+        let m = jaco2();
+        let mut d = m.data();
+        let q = within_limits(&m, &u);
+        let tau = rnea(&m, &q, &qd, &qdd);
+        let mut work = DMatrix::zeros(7, 7);
+        let mut out = vec![0.0; 7];
+        // Twice with the same work matrix: the factor handed back must not change the second answer.
+        for _ in 0..2 {
+            m.forward_dynamics(&q, &qd, tau.as_slice(), &mut d, &mut work, &mut out).unwrap();
+            for i in 0..7 { prop_assert!((out[i] - qdd[i]).abs() < 1e-8, "joint {i}: {} vs {}", out[i], qdd[i]); }
+        }
+    }
+
+    #[test]
     fn fk_never_yields_nan_within_limits(u in prop::collection::vec(0.0..1.0f64, 7)) {
         let m = jaco2();
         let mut d = m.data();
@@ -221,4 +240,24 @@ fn axis_permutation_joint_frames_take_the_fast_path_and_agree_with_the_product()
         let (pa, pb) = (m.frame_pose(frame, &a), generic.frame_pose(frame, &b));
         assert!((pa.to_homogeneous() - pb.to_homogeneous()).amax() < 1e-15, "q = {q:?}");
     }
+}
+
+#[test]
+fn forward_dynamics_refuses_bad_inputs_by_name() {
+    let m = jaco2();
+    let mut d = m.data();
+    let (q, qd) = (vec![0.0; 7], vec![0.0; 7]);
+    let mut qdd = vec![0.0; 7];
+    let mut work = DMatrix::zeros(7, 7);
+    let mut tau = vec![0.0; 7];
+    tau[2] = f64::NAN;
+    let e = m.forward_dynamics(&q, &qd, &tau, &mut d, &mut work, &mut qdd).unwrap_err();
+    assert!(e.to_string().starts_with("tau"), "{e}");
+    let e = m.forward_dynamics(&q, &qd[..6], &[0.0; 7], &mut d, &mut work, &mut qdd).unwrap_err();
+    assert!(e.to_string().starts_with("qd"), "{e}");
+    let mut small = DMatrix::zeros(6, 6);
+    let e = m.forward_dynamics(&q, &qd, &[0.0; 7], &mut d, &mut small, &mut qdd).unwrap_err();
+    assert!(e.to_string().starts_with("mass"), "{e}");
+    let huge = [1e300; 7];
+    assert!(m.forward_dynamics(&q, &huge, &[0.0; 7], &mut d, &mut work, &mut qdd).is_err());
 }

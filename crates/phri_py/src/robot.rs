@@ -421,6 +421,23 @@ impl PyRobot {
         self.map_rows(py, &[("q", &q), ("qd", &qd)], &[n], |m, d, x, out| m.nonlinear_effects(x[0], x[1], d, out))
     }
 
+    /// Forward dynamics q̈ = M(q)⁻¹(τ − C(q, q̇)q̇ − g(q)) [rad/s²] for efforts `tau` [N·m],
+    /// single or batched rows.
+    fn forward_dynamics<'py>(
+        &mut self,
+        py: Python<'py>,
+        q: ArrayIn<'py>,
+        qd: ArrayIn<'py>,
+        tau: ArrayIn<'py>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let n = self.model.nq();
+        let (q, qd, tau) = (rows("q", &q, n)?, rows("qd", &qd, n)?, rows("tau", &tau, n)?);
+        let mut work = DMatrix::zeros(n, n);
+        self.map_rows(py, &[("q", &q), ("qd", &qd), ("tau", &tau)], &[n], |m, d, x, out| {
+            m.forward_dynamics(x[0], x[1], x[2], d, &mut work, out)
+        })
+    }
+
     /// Joint-space mass matrix M(q) [kg·m²]; `q` (n,) → (n, n), (N, n) → (N, n, n).
     fn mass_matrix<'py>(&mut self, py: Python<'py>, q: ArrayIn<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let n = self.model.nq();

@@ -51,9 +51,7 @@ impl RobotModel {
         check_vector("qd", qd, n)?;
         check_vector("tau", tau, n)?;
         check_len("qdd", qdd, n)?;
-        if mass.shape() != (n, n) {
-            return Err(PhriError::shape("mass", format!("({n}, {n})"), format!("{:?}", mass.shape())));
-        }
+        check_square("mass", mass, n)?;
         self.forward_kinematics_unchecked(q, data);
         self.rnea_after_fk(qd, None, true, data, qdd); // the bias C(q, q̇)q̇ + g(q)
         check_result("qd", qdd)?;
@@ -64,6 +62,7 @@ impl RobotModel {
         // Cholesky in place: nalgebra's factor owns its matrix, so the work matrix is moved in and back.
         let work = std::mem::replace(mass, DMatrix::zeros(0, 0));
         let Some(factor) = work.cholesky() else {
+            *mass = DMatrix::zeros(n, n); // the factor took the work matrix: give the caller one back
             return Err(PhriError::invalid(
                 "q",
                 "gives a mass matrix that is not positive definite (check the model's inertias)",
@@ -180,9 +179,7 @@ impl RobotModel {
     pub fn mass_matrix(&self, q: &[f64], data: &mut RobotData, mass: &mut DMatrix<f64>) -> Result<()> {
         let n = self.nq();
         check_vector("q", q, n)?;
-        if mass.shape() != (n, n) {
-            return Err(PhriError::shape("mass", format!("({n}, {n})"), format!("{:?}", mass.shape())));
-        }
+        check_square("mass", mass, n)?;
         self.forward_kinematics_unchecked(q, data);
         self.mass_matrix_after_fk(data, mass);
         Ok(())
@@ -247,6 +244,13 @@ fn check_result(args: &str, tau: &[f64]) -> Result<()> {
 fn check_len(arg: &str, out: &[f64], n: usize) -> Result<()> {
     if out.len() != n {
         return Err(PhriError::shape(arg, format!("({n},)"), format!("({},)", out.len())));
+    }
+    Ok(())
+}
+
+fn check_square(arg: &str, out: &DMatrix<f64>, n: usize) -> Result<()> {
+    if out.shape() != (n, n) {
+        return Err(PhriError::shape(arg, format!("({n}, {n})"), format!("{:?}", out.shape())));
     }
     Ok(())
 }

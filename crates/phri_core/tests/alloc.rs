@@ -158,6 +158,22 @@ fn allocations<T>(f: impl FnOnce() -> T) -> (T, usize) {
 }
 
 #[test]
+fn forward_dynamics_allocates_nothing() {
+    // A simulated arm's step: q̈ from the torque, with the work matrix made once.
+    let model = common::jaco2();
+    let mut data = model.data();
+    let mut mass = nalgebra::DMatrix::zeros(7, 7);
+    let (q, qd, tau) = ([0.1, 2.9, 0.2, 1.3, -2.0, 1.5, 0.4], [0.3; 7], [1.0; 7]);
+    let mut qdd = [0.0; 7];
+    let (_, count) = allocations(|| {
+        for _ in 0..1000 {
+            model.forward_dynamics(&q, &qd, &tau, &mut data, &mut mass, &mut qdd).unwrap();
+        }
+    });
+    assert_eq!(count, 0, "forward_dynamics allocated {count} times in 1000 calls");
+}
+
+#[test]
 fn with_a_replan_worker_only_ticks_that_record_a_push_allocate() {
     // A push on joint 2 (threshold 8 N·m): deform, update, and a replan handed to the worker.
     let push = [0.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0];

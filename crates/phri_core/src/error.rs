@@ -42,6 +42,10 @@ pub enum PhriError {
     #[error("feature '{feature}': {reason}")]
     Feature { feature: String, reason: String },
 
+    /// A simulated arm's step failed: its state would become non-finite.
+    #[error("{reason}")]
+    Simulation { reason: String },
+
     /// An iterative solver stopped without meeting its tolerance.
     #[error("{what} did not converge after {iterations} iterations (residual {residual:e})")]
     NotConverged { what: String, iterations: usize, residual: f64 },

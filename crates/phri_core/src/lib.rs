@@ -24,6 +24,7 @@ mod pose;
 pub mod reference;
 pub mod safety;
 pub mod scene;
+pub mod sim;
 pub mod trajopt;
 pub mod update;
 pub mod wall;

@@ -18,6 +18,7 @@ pub enum Kind {
     Planning,
     ReplanWorker,
     Feature,
+    Simulation,
 }
 
 impl Kind {
@@ -32,11 +33,12 @@ impl Kind {
             Kind::Planning => "PlanningError",
             Kind::ReplanWorker => "ReplanWorkerError",
             Kind::Feature => "FeatureError",
+            Kind::Simulation => "SimulationError",
         }
     }
 
     fn cell(self) -> &'static PyOnceLock<Py<PyType>> {
-        static CELLS: [PyOnceLock<Py<PyType>>; 9] = [const { PyOnceLock::new() }; 9];
+        static CELLS: [PyOnceLock<Py<PyType>>; 10] = [const { PyOnceLock::new() }; 10];
         &CELLS[self as usize]
     }
 }
@@ -63,6 +65,7 @@ pub fn to_py(e: PhriError) -> PyErr {
         PhriError::Planning { .. } => Kind::Planning,
         PhriError::ReplanWorker { .. } => Kind::ReplanWorker,
         PhriError::Feature { .. } => Kind::Feature,
+        PhriError::Simulation { .. } => Kind::Simulation,
     };
     error(kind, e.to_string())
 }

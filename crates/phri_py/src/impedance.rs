@@ -163,7 +163,7 @@ fn gain_array<'py>(py: Python<'py>, g: &Gain) -> PyResult<Bound<'py, PyArrayDyn<
 /// scene).
 #[pyclass(name = "ImpedanceController", module = "phri._phri")]
 pub struct PyImpedanceController {
-    controller: ImpedanceController,
+    pub(crate) controller: ImpedanceController,
     status: ControlStatus,
     tau: Vec<f64>,
 }

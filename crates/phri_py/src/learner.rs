@@ -114,7 +114,7 @@ type Triple<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>, Bound<
 impl PyLearner {
     /// The learner, locked: at once if free, else once another thread's `observe` lets go of it,
     /// waiting with the GIL released (that `observe` may need it back to return).
-    fn learner(&self, py: Python<'_>) -> MutexGuard<'_, Learner> {
+    pub(crate) fn learner(&self, py: Python<'_>) -> MutexGuard<'_, Learner> {
         loop {
             match self.learner.try_lock() {
                 Ok(guard) => return guard,

@@ -22,6 +22,7 @@ mod reference;
 mod robot;
 mod safety;
 mod scene;
+mod sim;
 mod trajopt;
 mod update;
 
@@ -51,6 +52,8 @@ fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SAFETY_LIMITS", pyo3::types::PyTuple::new(m.py(), safety::limit_names())?)?;
     m.add_class::<learner::PyLearner>()?;
     m.add_class::<learner::PyLearnerHistory>()?;
+    m.add_class::<sim::PySimulatedArm>()?;
+    m.add_class::<sim::PySimulatedLoop>()?;
     m.add("UPDATE_RULES", pyo3::types::PyTuple::new(m.py(), phri_core::update::UpdateRule::NAMES)?)?;
     Ok(())
 }

@@ -39,7 +39,7 @@ impl PyRobot {
         PyRobot { model: Arc::new(model), data, frames: RobotFrames::default() }
     }
 
-    fn frame(&self, name: &str) -> PyResult<FrameId> {
+    pub(crate) fn frame(&self, name: &str) -> PyResult<FrameId> {
         self.model.frame_id(name).py_err()
     }
 

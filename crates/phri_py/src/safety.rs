@@ -100,7 +100,7 @@ impl PySafetyViolation {
 /// both counted per joint; a non-finite torque is a violation). Neither allocates.
 #[pyclass(name = "SafetyLayer", module = "phri._phri")]
 pub struct PySafetyLayer {
-    layer: SafetyLayer,
+    pub(crate) layer: SafetyLayer,
     status: SafetyStatus,
     tool: String,
 }

@@ -44,12 +44,14 @@ from phri.control.loop import TickHook
 from phri.episode_log import geometry_arrays, nearest_rows
 from phri.exceptions import InvalidParameterError, PlanningError, SimulationError
 from phri.sim.backend import PyBulletBackend, steps_per_period
+from phri.sim.native import run_native
 from phri.sim.participant import Participant, ParticipantParams
 from phri.sim.world import HAND, World, WorldParams
 
 __all__ = [
     "LATER_THRESHOLDS",
     "ORIGINAL_THRESHOLDS",
+    "SIMULATORS",
     "STRATEGIES",
     "EpisodeConfig",
     "EpisodeResult",
@@ -69,6 +71,10 @@ __all__ = [
 #: The strategies an episode can use: the impedance baseline (track the plan, spring back) and
 #: learning (Algorithm 1).
 STRATEGIES = ("impedance", "learning")
+#: The simulators an episode can run on: the arm's dynamics and the control loop in Rust
+#: (:mod:`phri.sim.native`, the default), or the Python control loop over PyBullet (the reference;
+#: docs/simulation.md gives the tolerance between them).
+SIMULATORS = ("native", "pybullet")
 #: Update rules of phri.WeightUpdate (their one home is the core).
 RULES = UPDATE_RULES
 #: Plans move each joint at most this fraction of its velocity limit (a margin for tracking).
@@ -144,6 +150,11 @@ class EpisodeConfig:
     #: The weight update's first-order step is the task's ``step`` × μ, so scaling μ by s and the
     #: steps by 1/s changes only how far from first order ΔΦ is (docs/participant.md, two features).
     deformation_gain: float | None = None
+    #: What simulates the arm and runs the control loop (one of SIMULATORS): "native", the arm's
+    #: dynamics and the loop's ticks in Rust (:mod:`phri.sim.native`, many times faster), or
+    #: "pybullet", :class:`phri.control.ControlLoop` over PyBullet's JACO2 (the reference, with
+    #: contacts and joint limits). Both give the same episode within docs/simulation.md's tolerance.
+    simulator: str = "native"
 
     def __post_init__(self) -> None:
         def fail(key: str, expected: str, got: Any, show: Any = str) -> Exception:
@@ -160,6 +171,8 @@ class EpisodeConfig:
         steps_per_period("log_rate", self.log_rate, WorldParams().timestep)
         if not (math.isfinite(self.sensor_noise) and self.sensor_noise >= 0):
             raise fail("sensor_noise", "a finite value >= 0 N·m", self.sensor_noise)
+        if self.simulator not in SIMULATORS:
+            raise fail("simulator", f"one of {SIMULATORS}", self.simulator, repr)
         if self.rule not in RULES:
             raise fail("rule", f"one of {RULES}", self.rule, repr)
         if not isinstance(self.one_at_a_time, bool):
@@ -595,17 +608,24 @@ def _simulate(
     frame_times: Sequence[float],
     frame_prefix: Path | None,
 ) -> EpisodeTrace:
-    """The episode on the control loop (:func:`run_on_loop`) over the PyBullet backend: the person
-    pushes, the sensor samples, the learner updates its reference, the impedance controller tracks
-    it and the safety layer watches."""
+    """The episode on ``config.simulator``: the person pushes, the sensor samples, the learner
+    updates its reference, the impedance controller tracks it and the safety layer watches."""
     dt = world.params.timestep
     world.set_scene(task.scene)
+    frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
+    frames: list[Path] = []
+
+    def render(k: int) -> None:
+        frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
+
+    if config.simulator == "native":
+        trace = _simulate_native(task, world, parts, config, frame_ticks if frame_prefix else {}, render)
+        trace.frames = frames
+        return trace
     backend = PyBulletBackend(
         world, participant=parts.person, sample_rate=config.sample_rate,
         sensor_noise=config.sensor_noise, sensor_bias=parts.bias, rng=parts.sensor_rng,
     )  # fmt: skip
-    frame_ticks = {int(round(ft / dt)): ft for ft in frame_times}
-    frames: list[Path] = []
 
     def push_of(state: RobotState) -> np.ndarray | None:
         push = backend.push
@@ -613,7 +633,7 @@ def _simulate(
 
     def on_tick(k: int, state: RobotState, row: int) -> None:
         if frame_prefix is not None and k in frame_ticks:
-            frames.append(world.render(f"{frame_prefix}_t{frame_ticks[k]:05.2f}.png"))
+            render(k)
 
     trace = run_on_loop(
         task, backend, parts.learner, parts.controller, parts.limits, push_of,
@@ -621,6 +641,46 @@ def _simulate(
     )  # fmt: skip
     trace.frames = frames
     return trace
+
+
+def _simulate_native(
+    task: Task,
+    world: World,
+    parts: _Parts,
+    config: EpisodeConfig,
+    frame_ticks: Mapping[int, float],
+    render: Callable[[int], None],
+) -> EpisodeTrace:
+    """The episode on :func:`phri.sim.native.run_native`; a frame is rendered by placing the
+    PyBullet arm at the tick's joint positions."""
+
+    def on_frame(k: int, q: np.ndarray) -> None:
+        world.reset(q)
+        render(k)
+
+    run = run_native(
+        world, task.start, task.duration, parts.learner, parts.controller, parts.limits, parts.person,
+        sample_every=parts.sample_every, sensor_noise=config.sensor_noise, bias=parts.bias,
+        rng=parts.sensor_rng, log_rate=config.log_rate, frame_ticks=list(frame_ticks), on_frame=on_frame,
+    )  # fmt: skip
+    log = run.loop.log
+    n = len(log["t"])
+    series = {key: log[key] for key in ("q", "qd", "q_ref", "tau")}
+    series["u_h"] = log["tau_ext"]
+    series["push"] = run.push
+    series["wall_force"] = log["wall_force"]
+    # The hand's distance from its reference while nobody touches it (as run_on_loop measures it).
+    free = ~run.touched
+    tracking = 0.0
+    if free.any():
+        model = world.model
+        gap = model.frame_pose(HAND, log["q"][free])[:, :3, 3] - model.frame_pose(HAND, log["q_ref"][free])[:, :3, 3]
+        tracking = float(np.linalg.norm(gap, axis=1).max())
+    return EpisodeTrace(
+        log["t"], series, rows=n, tracking_error=tracking, wall_ticks=run.loop.wall_ticks,
+        wall_peak_force=run.loop.wall_peak_force, loop=run.loop,
+        error=run.error if run.error is not None else run.loop.error,
+    )  # fmt: skip
 
 
 def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndarray]:

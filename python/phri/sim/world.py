@@ -253,11 +253,17 @@ class World:
         return np.array(q), np.array(qd)
 
     def hand_position(self) -> np.ndarray:
-        """World position of the tool point (where the person pushes) [m]."""
-        s = self.p.getLinkState(
+        """World position of the tool point (where the person pushes) [m]: phri's model's hand frame
+        at the arm's joint positions. (PyBullet's own link frame lies about 3e-8 m from it, its
+        rounding of the URDF's chain, which would change a push's joint torques by about 1e-6 of
+        themselves and set PyBullet apart from the native simulator, phri.sim.native.)"""
+        # Also refreshes PyBullet's link poses, which stepSimulation leaves one step stale and from
+        # which applyExternalForce takes the push's lever arm.
+        self.p.getLinkState(
             self.robot_id, self.links[HAND], computeForwardKinematics=True, physicsClientId=self.client
         )
-        return np.array(s[4])
+        q, _ = self.state()
+        return self.model.frame_pose(HAND, q)[:3, 3]
 
     def step(
         self, tau: np.ndarray, force: np.ndarray | None = None, torque: np.ndarray | None = None

@@ -40,6 +40,10 @@ def _saturate(v: np.ndarray, limit: float) -> np.ndarray:
     return v * (limit / norm) if norm > limit else v
 
 
+#: A part of a push smaller than this fraction of the whole is rounding, without a direction [-].
+NEGLIGIBLE = 1e-9
+
+
 def _across(direction: np.ndarray, push: np.ndarray) -> np.ndarray:
     """The unit vector along `direction`'s part perpendicular to `push` (any direction if `push` is 0)."""
     norm2 = float(push @ push)
@@ -94,10 +98,14 @@ class HumanArm:
         intended_force = p.stiffness * move[:3]
         intended_torque = p.rotational_stiffness * move[3:]
         size = _norm(intended_force) + _norm(intended_torque) / LEVER  # N
-        wished_force = intended_force + p.off_axis * size * _across(self.across[:3], intended_force)
-        wished_torque = intended_torque + p.off_axis * size * LEVER * _across(
-            self.across[3:], intended_torque
-        )
+        # A part of the move within rounding of nothing (a task that only tilts the cup, or only
+        # moves it) has no direction: the off-axis push then goes along the bout's own direction,
+        # not across one that rounding made up (which would flip with the last bit of the pose).
+        negligible = NEGLIGIBLE * size
+        along_force = intended_force if _norm(intended_force) > negligible else np.zeros(3)
+        along_torque = intended_torque if _norm(intended_torque) / LEVER > negligible else np.zeros(3)
+        wished_force = intended_force + p.off_axis * size * _across(self.across[:3], along_force)
+        wished_torque = intended_torque + p.off_axis * size * LEVER * _across(self.across[3:], along_torque)
         if lag is not None:
             wished_force = wished_force + p.stiffness * lag[:3]
             wished_torque = wished_torque + p.rotational_stiffness * lag[3:]

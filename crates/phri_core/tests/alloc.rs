@@ -174,6 +174,43 @@ fn forward_dynamics_allocates_nothing() {
 }
 
 #[test]
+fn the_simulated_loops_ticks_allocate_nothing() {
+    // The native episode's ticks with a push (below the detector's thresholds): the read, the
+    // safety checks, observe, reference, the implicit law, the limits, the step and the log rows
+    // (made for the whole motion at the start).
+    use phri_core::sim::{LoopSettings, SimulatedArm, SimulatedLoop};
+    let mut learner = learner();
+    let carrying = Arc::new(common::jaco2_with_cup());
+    let mut controller = ImpedanceController::new(carrying.clone(), ImpedanceParams::jaco2_default()).unwrap();
+    let tool = carrying.frame_id("j2s7s300_end_effector").unwrap();
+    let limits = SafetyLimits {
+        position_lower: vec![f64::NEG_INFINITY; 7],
+        position_upper: vec![f64::INFINITY; 7],
+        velocity: vec![10.0; 7],
+        torque: carrying.effort_limits(),
+        torque_rate: vec![1e4; 7],
+        tool_box: None,
+    };
+    let mut safety = SafetyLayer::new(carrying.clone(), tool, limits, SafetyParams::default()).unwrap();
+    let arm = SimulatedArm::new(carrying.clone(), 1e-3, 9.81, &[0.0; 7]).unwrap();
+    let settings = LoopSettings { duration: 2.0, hold_time: 0.5, log_period: 0.01, sample_every: 1, hand: tool };
+    let start = learner.plan().waypoints()[..7].to_vec();
+    let mut sim = SimulatedLoop::new(arm, settings, &start, &mut safety).unwrap();
+    let offsets = vec![0.01; 20 * 7];
+    let push = [0.5, 0.0, 0.2, 0.0, 0.0, 0.0];
+    let (_, count) = allocations(|| {
+        while !sim.done() {
+            let until = sim.tick() + 20;
+            let rows = sim.samples_before(until) as usize * 7;
+            sim.advance(until, Some(&push), &offsets[..rows], &mut learner, &mut controller, &mut safety).unwrap();
+        }
+    });
+    assert_eq!(sim.ticks(), 2001);
+    assert!(sim.stop().is_none() && sim.log().rows() == 201);
+    assert_eq!(count, 0, "the simulated loop allocated {count} times in 2001 ticks");
+}
+
+#[test]
 fn with_a_replan_worker_only_ticks_that_record_a_push_allocate() {
     // A push on joint 2 (threshold 8 N·m): deform, update, and a replan handed to the worker.
     let push = [0.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.0];

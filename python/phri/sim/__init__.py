@@ -1,8 +1,9 @@
-"""Simulation of the study: the JACO2 in PyBullet, the simulated participant, and episodes."""
+"""Simulation of the study: the JACO2 (natively, or in PyBullet), the simulated participant, and episodes."""
 
 from phri.sim.episode import (
     LATER_THRESHOLDS,
     ORIGINAL_THRESHOLDS,
+    SIMULATORS,
     STRATEGIES,
     EpisodeConfig,
     EpisodeResult,
@@ -15,6 +16,7 @@ from phri.sim.world import World, WorldParams
 __all__ = [
     "LATER_THRESHOLDS",
     "ORIGINAL_THRESHOLDS",
+    "SIMULATORS",
     "STRATEGIES",
     "EpisodeConfig",
     "EpisodeResult",

@@ -23,7 +23,8 @@ def main() -> None:
     args = parser.parse_args()
     person = ParticipantParams.draw(np.random.default_rng(7))
     rows = []
-    print(f"{'task':<8} {'strategy':<10} {'native [s]':>10} {'pybullet [s]':>12} {'x real time':>12} {'ratio':>7}")
+    header = f"{'native [s]':>10} {'pybullet [s]':>12} {'x real time':>12} {'ratio':>7}"
+    print(f"{'task':<8} {'strategy':<10} {header}")
     with World() as world:
         for name in STUDY_TASKS:
             task = phri.load_task(name)

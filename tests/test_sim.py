@@ -228,9 +228,12 @@ def test_the_log_in_memory_is_the_log_written(world, tmp_path) -> None:
 def test_a_simulator_failure_is_an_error_and_the_log_so_far_stays_readable(
     world, tmp_path, monkeypatch
 ) -> None:
+    """PyBullet failing (the reference simulator, where the world's state is read every tick; the
+    native loop's failures: tests/test_native.py)."""
     task = phri.load_task("table")
     short = shortened(task, 1.0, 5)
     planner = Planner(short, world)
+    on_pybullet = EpisodeConfig(simulator="pybullet")
     real_state, calls = world.state, {"n": 0}
 
     def failing_state():
@@ -241,7 +244,7 @@ def test_a_simulator_failure_is_an_error_and_the_log_so_far_stays_readable(
 
     monkeypatch.setattr(world, "state", failing_state)
     with pytest.raises(SimulationError, match="non-finite"):
-        run_episode(short, world, NOBODY, planner=planner, log_path=tmp_path / "partial.npz")
+        run_episode(short, world, NOBODY, on_pybullet, planner=planner, log_path=tmp_path / "partial.npz")
     with np.load(tmp_path / "partial.npz") as log:
         assert 25 <= len(log["t"]) <= 31
     # Any other failure (a lost simulator, Ctrl-C) also keeps the log, and is re-raised as it was.
@@ -257,7 +260,7 @@ def test_a_simulator_failure_is_an_error_and_the_log_so_far_stays_readable(
         monkeypatch.setattr(world, "state", interrupted_state)
         path = tmp_path / f"{type(error).__name__}.npz"
         with pytest.raises(type(error)):
-            run_episode(short, world, NOBODY, planner=planner, log_path=path)
+            run_episode(short, world, NOBODY, on_pybullet, planner=planner, log_path=path)
         with np.load(path) as log:
             assert 45 <= len(log["t"]) <= 51
 

@@ -1174,18 +1174,19 @@ def test_a_failed_episode_hands_back_its_log_so_far(monkeypatch: pytest.MonkeyPa
     from phri.exceptions import SimulationError
     from phri.study.runner import EpisodeRunner
 
+    from phri.sim.participant import Participant
+
     runner = EpisodeRunner(TINY, TINY.load_tasks())
     try:
-        world, calls = runner.world, {"n": 0}
-        real_state = world.state
+        calls, real = {"n": 0}, Participant.wrench
 
-        def failing_state():  # noqa: ANN202
-            calls["n"] += 1
-            if calls["n"] > 200:
+        def failing(self, t, q):  # noqa: ANN001, ANN202
+            calls["n"] += 1  # the person looks 50 times a second: 0.2 s in
+            if calls["n"] > 10:
                 raise SimulationError("the simulator returned a non-finite joint state")
-            return real_state()
+            return real(self, t, q)
 
-        monkeypatch.setattr(world, "state", failing_state)
+        monkeypatch.setattr(Participant, "wrench", failing)
         spec = schedule(TINY)[0]
         outcome = runner.run(spec)
     finally:

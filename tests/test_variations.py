@@ -227,10 +227,15 @@ def test_with_a_second_learned_feature_learning_needs_less_effort_and_ends_close
     """Two-feature variations (the table's height learned too on the cup task, the cup's tilt on the
     human task): on average over 3 people, in each of 2 variations of each. Not on the table task
     with the tilt added, where learning needs more effort than impedance in 20 of 30 variations
-    (docs/participant.md, "Scenes the person was checked on")."""
+    (docs/participant.md, "Scenes the person was checked on").
+
+    Six people per variation, as the bench's studies have: with three, one variation's mean is one
+    person's luck (when the person's off-axis push stopped taking its direction from rounding, the
+    draws changed and a variation came out 8 % the other way; over 30 variations of each task the
+    bench's rate went from 93 % to 96 %, `benches/variations.py --seed 11 --second`)."""
     bench = _bench()
     tasks = ("coffee", "human")
-    outcomes = bench.run(SEED, tasks, 2, 3, second=True)
+    outcomes = bench.run(SEED, tasks, 2, 6, second=True)
     table = bench.report(outcomes, tasks)
     for o in outcomes:
         assert np.mean(o.effort["learning"]) < np.mean(o.effort["impedance"]), table

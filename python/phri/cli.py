@@ -74,7 +74,7 @@ def _demo(args: argparse.Namespace) -> int:
         print(table_row(result), flush=True)
 
     run_demo(Path(args.out), seed=args.seed, gui=args.gui, frames=not args.no_frames,
-             tasks=args.task, on_episode=print_row)  # fmt: skip
+             tasks=args.task, on_episode=print_row, simulator=args.simulator)  # fmt: skip
     return 0
 
 
@@ -130,6 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--gui", action="store_true", help="show the PyBullet window")
     demo.add_argument("--no-frames", action="store_true", help="skip rendering PNG frames")
+    demo.add_argument("--simulator", choices=("native", "pybullet"), default=None,
+                      help="what simulates the episodes (default native; pybullet with --gui, whose window "
+                      "shows PyBullet's arm)")  # fmt: skip
     demo.add_argument("--task", action="append", metavar="TASK",
                       help="a shipped task's name or a task file (.toml) to run instead of the study's four; "
                       "repeat for several")  # fmt: skip

@@ -26,6 +26,7 @@ from phri.config import STUDY_TASKS, Task, load_task
 from phri.exceptions import InvalidParameterError
 from phri.feature import Feature as PythonFeature
 from phri.sim import (
+    SIMULATORS,
     STRATEGIES,
     EpisodeConfig,
     EpisodeResult,
@@ -147,6 +148,7 @@ def run_demo(
     frames: bool = True,
     tasks: Sequence[str | Path] | None = None,
     on_episode: Callable[[EpisodeResult], None] | None = None,
+    simulator: str | None = None,
 ) -> DemoResult:
     """Runs the demo into a fresh folder next to (or at) `out` and returns what it did.
 
@@ -156,8 +158,13 @@ def run_demo(
     too weak to register a push) and `seed` seeds their tremor, aim and the sensor; `gui` shows
     PyBullet's window; `frames` renders PNG frames. `on_episode` is called with each episode's
     result as it finishes (``phri demo`` prints its row). Each episode's row is appended to
-    ``summary.csv`` as soon as it finishes, so an interrupted demo keeps what it did."""
+    ``summary.csv`` as soon as it finishes, so an interrupted demo keeps what it did. `simulator`
+    (``EpisodeConfig.simulator``; None: "native", or "pybullet" with `gui`, whose window shows
+    PyBullet's arm) simulates the episodes."""
     began = time.perf_counter()
+    simulator = simulator or ("pybullet" if gui else "native")
+    if simulator not in SIMULATORS:
+        raise InvalidParameterError(f"simulator must be one of {SIMULATORS}, got {simulator!r}")
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
     check_out(Path(out))
@@ -171,7 +178,7 @@ def run_demo(
         (folder / "logs").mkdir()
         (folder / "frames").mkdir()
         log.info("one simulated participant (%s); output in %s", describe_participant(participant), folder)
-        results = _run(world, planners, participant, folder, seed, frames, on_episode)
+        results = _run(world, planners, participant, folder, seed, frames, on_episode, simulator)
     seconds = time.perf_counter() - began
     log.info(
         "wrote %s: summary.csv, force_*.png, path_*.png, feature_*.png, weights_*.png, frames/, logs/ "
@@ -188,6 +195,7 @@ def _run(
     seed: int,
     frames: bool,
     on_episode: Callable[[EpisodeResult], None] | None,
+    simulator: str,
 ) -> list[EpisodeResult]:
     """Both strategies on each planner's task; each row into ``summary.csv`` as it finishes, then
     the task's figures."""
@@ -197,7 +205,9 @@ def _run(
         for planner in planners:
             task, per_task = planner.task, {}
             for strategy in STRATEGIES:
-                r = run_episode_for_demo(task, world, participant, strategy, planner, folder, seed, frames)
+                r = run_episode_for_demo(
+                    task, world, participant, strategy, planner, folder, seed, frames, simulator
+                )
                 per_task[strategy] = r
                 results.append(r)
                 if summary is None:
@@ -221,12 +231,15 @@ def run_episode_for_demo(
     folder: Path,
     seed: int,
     frames: bool,
+    simulator: str = "native",
 ) -> EpisodeResult:
-    """One episode of the demo: its log into ``folder/logs``, its frames into ``folder/frames``."""
+    """One episode of the demo on `simulator`: its log into ``folder/logs``, its frames into
+    ``folder/frames``."""
     from phri.sim import run_episode
 
+    config = EpisodeConfig(strategy=strategy, simulator=simulator)
     return run_episode(
-        task, world, participant, EpisodeConfig(strategy=strategy), seed=seed, planner=planner,
+        task, world, participant, config, seed=seed, planner=planner,
         log_path=folder / "logs" / f"{task.name}_{strategy}.npz",
         frame_times=frame_times(task.duration) if frames else (),
         frame_prefix=folder / "frames" / f"{task.name}_{strategy}",

@@ -673,9 +673,9 @@ def _simulate_native(
     free = ~run.touched
     tracking = 0.0
     if free.any():
-        model = world.model
-        gap = model.frame_pose(HAND, log["q"][free])[:, :3, 3] - model.frame_pose(HAND, log["q_ref"][free])[:, :3, 3]
-        tracking = float(np.linalg.norm(gap, axis=1).max())
+        hand = world.model.frame_pose(HAND, log["q"][free])[:, :3, 3]
+        wanted = world.model.frame_pose(HAND, log["q_ref"][free])[:, :3, 3]
+        tracking = float(np.linalg.norm(hand - wanted, axis=1).max())
     return EpisodeTrace(
         log["t"], series, rows=n, tracking_error=tracking, wall_ticks=run.loop.wall_ticks,
         wall_peak_force=run.loop.wall_peak_force, loop=run.loop,

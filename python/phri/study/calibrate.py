@@ -38,7 +38,7 @@ from phri._extras import require
 from phri.atomic import write_atomic
 from phri.config import Task, load_task
 from phri.exceptions import InvalidParameterError, PhriError
-from phri.sim.episode import STRATEGIES, EpisodeConfig, Planner, simulate_episode
+from phri.sim.episode import SIMULATORS, STRATEGIES, EpisodeConfig, Planner, simulate_episode
 from phri.sim.participant import PARAMETERS, Population, default_population
 from phri.sim.participant.population import start_record
 from phri.sim.world import World
@@ -105,6 +105,8 @@ class CalibrationSettings:
     tolerance: float = 0.2
     #: Worker processes (1: in this process).
     workers: int = 1
+    #: What simulates the episodes (EpisodeConfig.simulator): "native" or "pybullet".
+    simulator: str = "native"
 
     def __post_init__(self) -> None:
         for key in ("participants", "attempts", "budget", "workers"):
@@ -119,6 +121,8 @@ class CalibrationSettings:
             )
         if not self.free:
             raise InvalidParameterError("free must name at least one quantity to fit")
+        if self.simulator not in SIMULATORS:
+            raise InvalidParameterError(f"simulator must be one of {SIMULATORS}, got {self.simulator!r}")
 
 
 @dataclass
@@ -202,9 +206,9 @@ def _init_worker(tasks: Mapping[str, Task]) -> None:
     _WORKER["planners"] = {}
 
 
-def _episode(job: tuple[Population, int, str, str, int, int]) -> dict[str, Any]:
+def _episode(job: tuple[Population, int, str, str, int, int, str]) -> dict[str, Any]:
     """One episode of a candidate study (run in a worker): its row of the results table."""
-    population, participant, task_name, strategy, attempt, seed = job
+    population, participant, task_name, strategy, attempt, seed, simulator = job
     if _WORKER.get("world") is None:
         _WORKER["world"] = World()
     world, planners, task = _WORKER["world"], _WORKER["planners"], _WORKER["tasks"][task_name]
@@ -212,9 +216,8 @@ def _episode(job: tuple[Population, int, str, str, int, int]) -> dict[str, Any]:
         planners[task_name] = Planner(task, world)
     person = population.draw(seed, participant).for_attempt(attempt)
     episode = episode_seed(seed, participant, strategy, task_name, attempt)
-    result, error = simulate_episode(
-        task, world, person, EpisodeConfig(strategy=strategy), seed=episode, planner=planners[task_name]
-    )
+    config = EpisodeConfig(strategy=strategy, simulator=simulator)
+    result, error = simulate_episode(task, world, person, config, seed=episode, planner=planners[task_name])
     ok = error is None
     return {
         "participant": participant, "strategy": strategy, "task": task_name, "attempt": attempt,
@@ -239,7 +242,7 @@ class _Simulator:
 
     def run(self, population: Population, settings: CalibrationSettings) -> pd.DataFrame:
         jobs = [
-            (population, p, task, strategy, attempt, settings.seed)
+            (population, p, task, strategy, attempt, settings.seed, settings.simulator)
             for p in range(1, settings.participants + 1)
             for task in self.tasks
             for strategy in STRATEGIES

@@ -100,6 +100,10 @@ def _add_study(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[
     x.add_argument(
         "--address", help="Ray cluster address, e.g. 'auto' (backend ray; default: a local instance)"
     )
+    x.add_argument("--simulator", choices=("native", "pybullet"), default=None,
+                   help="what simulates the episodes: the arm and the control loop in Rust (native, the "
+                   "default) or the Python loop over PyBullet (the reference); they agree within "
+                   "docs/simulation.md's tolerance")
     x.add_argument("--max-episodes", type=int, help="stop after this many new episodes (resume later)")
     x.add_argument("--ask", action="store_true",
                    help="ask the Table 1 questionnaire on the terminal after each participant's strategy "
@@ -186,6 +190,8 @@ def _add_calibrate(subparsers: argparse._SubParsersAction) -> None:  # type: ign
     c.add_argument("--tolerance", type=float, default=0.2,
                    help="a target is met within this relative difference (default 0.2)")  # fmt: skip
     c.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    c.add_argument("--simulator", choices=("native", "pybullet"), default="native",
+                   help="what simulates the episodes (default native)")  # fmt: skip
     c.add_argument("--accept-misses", action="store_true",
                    help="write the population even if it misses targets (recorded in it)")  # fmt: skip
     c.add_argument("--no-progress", action="store_true", help="no progress bar (shown only on a terminal)")
@@ -374,7 +380,7 @@ def cmd_study(args: argparse.Namespace) -> int:
                 workers=args.workers, address=args.address, max_episodes=args.max_episodes,
                 progress=not args.no_progress and not getattr(args, "quiet", 0) and runner is None,
                 between_strategies=between, answered=answered,
-                allow_version_change=args.allow_version_change, runner=runner,
+                allow_version_change=args.allow_version_change, runner=runner, simulator=args.simulator,
             )  # fmt: skip
     except StudyPaused as e:
         print(
@@ -484,6 +490,7 @@ def _calibration_settings(args: argparse.Namespace) -> CalibrationSettings:
     return CalibrationSettings(
         participants=args.participants, attempts=args.attempts, seed=args.seed, budget=args.budget,
         free=args.free or DEFAULT_FREE, tolerance=args.tolerance, workers=args.workers,
+        simulator=args.simulator,
     )  # fmt: skip
 
 
@@ -496,7 +503,7 @@ def _calibrate_command(args: argparse.Namespace, settings: CalibrationSettings) 
     words += ["--participants", str(settings.participants), "--attempts", str(settings.attempts),
               "--seed", str(settings.seed), "--budget", str(settings.budget),
               "--free", ",".join(settings.free), "--tolerance", repr(settings.tolerance),
-              "--workers", str(settings.workers)]  # fmt: skip
+              "--workers", str(settings.workers), "--simulator", settings.simulator]  # fmt: skip
     if args.accept_misses:
         words.append("--accept-misses")
     return shlex.join(words)

@@ -52,6 +52,8 @@ MAX_PARTICIPANTS = 10_000
 #: Most attempts per task and strategy a study may have (see MAX_PARTICIPANTS).
 MAX_ATTEMPTS = 100
 
+#: StudyConfig's fields that say how the study runs, not what it is: neither saved nor compared.
+_EXECUTION = frozenset({"folder", "simulator"})
 #: The folder of a study folder that keeps copies of the task files it was started with (tasks
 #: given as paths), named ``<task name>.toml``: the study is resumed and reported from them,
 #: wherever it is run from and wherever the original files went.
@@ -97,6 +99,10 @@ class StudyConfig:
     #: (``tasks/<name>.toml``, see :data:`TASKS_FOLDER`) and nothing outside it; without, paths are
     #: read as given (relative to the working directory).
     folder: Path | None = dataclasses.field(default=None, compare=False, repr=False)
+    #: Not a study parameter either (neither compared nor saved): what simulates the episodes
+    #: (EpisodeConfig.simulator: "native", or "pybullet"; the two agree within docs/simulation.md's
+    #: tolerance, so a study may be resumed on either).
+    simulator: str = dataclasses.field(default="native", compare=False, repr=False)
 
     def __post_init__(self) -> None:
         def fail(key: str, expected: str, got: Any) -> Exception:
@@ -153,7 +159,10 @@ class StudyConfig:
             if getattr(self, key) is not None:
                 object.__setattr__(self, key, int(getattr(self, key)))
         try:
-            EpisodeConfig(sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule)
+            EpisodeConfig(
+                sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule,
+                simulator=self.simulator,
+            )  # fmt: skip
         except ValueError as e:
             raise StudyConfigError(f"study: {e}") from None
         if not isinstance(self.population, Population):  # a name, a path or a table (as to_dict gives)
@@ -164,8 +173,9 @@ class StudyConfig:
     def episode_config(self, strategy: str) -> EpisodeConfig:
         """How the study runs an episode of `strategy` (its sample rate, sensor noise and rule)."""
         return EpisodeConfig(
-            strategy=strategy, sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule
-        )
+            strategy=strategy, sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule,
+            simulator=self.simulator,
+        )  # fmt: skip
 
     def load_tasks(self) -> dict[str, Task]:
         """The study's tasks by name, with the duration/waypoints/knots overrides applied."""
@@ -252,7 +262,7 @@ class StudyConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """The config as JSON-ready values (study.json's ``config``)."""
-        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "folder"}
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in _EXECUTION}
         d["tasks"], d["strategies"] = list(self.tasks), list(self.strategies)
         d["population"] = self.population.to_dict()
         return d
@@ -268,7 +278,7 @@ class StudyConfig:
             raise StudyConfigError(
                 f"{source}: expected a table of study parameters, got {type(data).__name__}"
             )
-        known = {f.name for f in dataclasses.fields(cls)} - {"folder"}
+        known = {f.name for f in dataclasses.fields(cls)} - _EXECUTION
         unknown = sorted(set(data) - known)
         if unknown:
             raise StudyConfigError(f"{source}: unknown key(s) {unknown}; known: {sorted(known)}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -10,6 +11,7 @@ from typing import Any
 
 from phri._extras import check, require
 from phri.exceptions import InvalidParameterError
+from phri.sim.episode import SIMULATORS
 from phri.study.parallel import Backend, check_backend, make_backend
 from phri.study.protocol import EpisodeSpec, StudyConfig
 from phri.study.results import ResultStore
@@ -57,6 +59,7 @@ def run_study(
     answered: Callable[[int, str], bool] | None = None,
     allow_version_change: bool = False,
     runner: Callable[[StudyConfig, int], Backend] | None = None,
+    simulator: str | None = None,
 ) -> StudyRun:
     """Runs the study `config` into `run_dir`, or resumes it: episodes already in results.csv are
     kept and skipped. With `config` None the folder's own study is resumed (or the default study is
@@ -76,13 +79,19 @@ def run_study(
 
     `workers` must be >= 1 (None: the CPUs available; for backend "ray", the Ray cluster's CPUs). A
     folder started with another phri version is refused (:class:`~phri.study.errors.StudyMismatchError`)
-    unless `allow_version_change`.
+    unless `allow_version_change`. `simulator` (one of :data:`phri.sim.episode.SIMULATORS`; None:
+    the config's, "native" by default) simulates the episodes; it is not part of the study, so a
+    study may be resumed on another.
     """
     # Before the folder is touched.
     _check_arguments(backend, workers, max_episodes, between_strategies, custom=runner is not None)
+    if simulator is not None and simulator not in SIMULATORS:
+        raise InvalidParameterError(f"simulator must be one of {SIMULATORS}, got {simulator!r}")
     began = time.perf_counter()
     store = ResultStore.open(run_dir, config, allow_version_change=allow_version_change)
     config = store.config
+    if simulator is not None:
+        config = dataclasses.replace(config, simulator=simulator)
     try:
         if between_strategies is not None and answered is not None:
             for participant, strategy in _finished_blocks(store):

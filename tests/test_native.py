@@ -85,11 +85,11 @@ def test_a_safety_stop_and_its_hold_are_the_same_on_both_simulators(world, plann
     tick for the same reason, hold the position for the hold time and log the same."""
     task = phri.load_task("table")
     config = EpisodeConfig(strategy="impedance", sensor_noise=0.0)
-    person = ParticipantParams(tolerance=0.002, max_force=25.0, delay=0.1)
+    person = ParticipantParams()  # their push turns joint 7 at up to 0.6 rad/s; the plan, 0.17 at most
     traces = {}
     for simulator in SIMULATORS:
         controls = robot_controls(task, world.model, config, planners["table"], replan_latency=0.001)
-        limits = dataclasses.replace(controls.limits, velocity=np.full(7, 0.25))
+        limits = dataclasses.replace(controls.limits, velocity=np.full(7, 0.3))
         rng = np.random.default_rng(1)
         pusher = Participant(person, task, world.model, planners["table"].desired, rng)
         if simulator == "native":
@@ -108,7 +108,7 @@ def test_a_safety_stop_and_its_hold_are_the_same_on_both_simulators(world, plann
             )  # fmt: skip
             traces[simulator] = trace.loop
     native, reference = traces["native"], traces["pybullet"]
-    assert native.stop is not None and reference.stop is not None, "nobody drove a joint past 0.25 rad/s"
+    assert native.stop is not None and reference.stop is not None, "nobody drove a joint past 0.3 rad/s"
     a, b = native.stop, reference.stop
     assert (a.reason, a.quantity, a.index, a.tick) == (b.reason, b.quantity, b.index, b.tick) == (
         "joint_velocity", "qd", a.index, a.tick,

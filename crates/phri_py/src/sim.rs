@@ -179,12 +179,13 @@ impl PySimulatedLoop {
         self.inner.t()
     }
 
-    /// The next tick's joint positions [rad] and velocities [rad/s].
+    /// The next tick's joint positions [rad].
     #[getter]
     fn q<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         PyArray1::from_slice(py, self.inner.arm().q())
     }
 
+    /// The next tick's joint velocities [rad/s].
     #[getter]
     fn qd<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         PyArray1::from_slice(py, self.inner.arm().qd())
@@ -220,12 +221,13 @@ impl PySimulatedLoop {
         self.inner.wall_peak_force()
     }
 
-    /// Replans the learner's worker failed (the arm kept its plan), and the last one's message.
+    /// Replans the learner's worker failed (the arm kept its plan).
     #[getter]
     fn replan_failures(&self) -> u64 {
         self.inner.replan_failures()
     }
 
+    /// The last failed replan's message (None: none failed).
     #[getter]
     fn replan_error(&self) -> Option<&str> {
         self.inner.replan_error()

@@ -1172,9 +1172,8 @@ def test_a_failed_episode_hands_back_its_log_so_far(monkeypatch: pytest.MonkeyPa
     import io
 
     from phri.exceptions import SimulationError
-    from phri.study.runner import EpisodeRunner
-
     from phri.sim.participant import Participant
+    from phri.study.runner import EpisodeRunner
 
     runner = EpisodeRunner(TINY, TINY.load_tasks())
     try:

@@ -112,7 +112,7 @@ type Arr<'py> = Bound<'py, PyArray1<f64>>;
 type StopTuple<'py> = (PySafetyViolation, u64, f64, Arr<'py>, Arr<'py>, Arr<'py>, Arr<'py>, bool);
 
 fn rows<'py>(py: Python<'py>, values: &[f64], cols: usize) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    Ok(PyArray1::from_slice(py, values).reshape([values.len() / cols, cols])?)
+    PyArray1::from_slice(py, values).reshape([values.len() / cols, cols])
 }
 
 #[pymethods]
@@ -144,6 +144,7 @@ impl PySimulatedLoop {
     /// learner (a failed replan worker only counts, `replan_failures`), the law or the step ends
     /// the motion and is raised.
     #[pyo3(signature = (until, push, offsets, learner, controller, safety))]
+    #[allow(clippy::too_many_arguments)]
     fn advance(
         &mut self,
         py: Python<'_>,
@@ -247,7 +248,8 @@ impl PySimulatedLoop {
         let n = self.inner.arm().model().nq();
         let d = pyo3::types::PyDict::new(py);
         d.set_item("t", PyArray1::from_slice(py, &log.t))?;
-        for (key, values) in [("q", &log.q), ("qd", &log.qd), ("q_ref", &log.q_ref), ("tau", &log.tau), ("tau_ext", &log.tau_ext)] {
+        for (key, values) in [("q", &log.q), ("qd", &log.qd), ("q_ref", &log.q_ref), ("tau", &log.tau), ("tau_ext", &log.tau_ext)]
+        {
             d.set_item(key, rows(py, values, n)?)?;
         }
         d.set_item("wall_force", PyArray1::from_slice(py, &log.wall_force))?;

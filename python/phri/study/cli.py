@@ -100,10 +100,14 @@ def _add_study(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[
     x.add_argument(
         "--address", help="Ray cluster address, e.g. 'auto' (backend ray; default: a local instance)"
     )
-    x.add_argument("--simulator", choices=("native", "pybullet"), default=None,
-                   help="what simulates the episodes: the arm and the control loop in Rust (native, the "
-                   "default) or the Python loop over PyBullet (the reference); they agree within "
-                   "docs/simulation.md's tolerance")
+    x.add_argument(
+        "--simulator",
+        choices=("native", "pybullet"),
+        default=None,
+        help="what simulates the episodes: the arm and the control loop in Rust (native, the "
+        "default) or the Python loop over PyBullet (the reference); they agree within "
+        "docs/simulation.md's tolerance",
+    )
     x.add_argument("--max-episodes", type=int, help="stop after this many new episodes (resume later)")
     x.add_argument("--ask", action="store_true",
                    help="ask the Table 1 questionnaire on the terminal after each participant's strategy "

@@ -77,7 +77,11 @@ enum Phase {
     Running,
     /// Holding the position of the stop at `t_stop` [s] until `until` [s]; `started` once the
     /// stop's own tick has run.
-    Holding { t_stop: f64, until: f64, started: bool },
+    Holding {
+        t_stop: f64,
+        until: f64,
+        started: bool,
+    },
     Done,
 }
 
@@ -284,7 +288,9 @@ impl SimulatedLoop {
         if let Some(w) = push {
             crate::error::check_finite("push", w)?;
         }
-        for (arg, nq) in [("learner", learner.plan().dof()), ("controller", controller.model().nq()), ("safety", safety.model().nq())] {
+        for (arg, nq) in
+            [("learner", learner.plan().dof()), ("controller", controller.model().nq()), ("safety", safety.model().nq())]
+        {
             if nq != n {
                 return Err(PhriError::shape(arg, format!("a robot of {n} joints"), format!("{nq} joints")));
             }
@@ -344,8 +350,14 @@ impl SimulatedLoop {
                     Err(e) => return Err(e),
                 }
                 learner.reference(t, &mut self.q_ref, &mut self.qd_ref, &mut self.qdd_ref);
-                let status =
-                    controller.torque_implicit(self.arm.q(), self.arm.qd(), &self.q_ref, &self.qd_ref, self.period, &mut self.tau)?;
+                let status = controller.torque_implicit(
+                    self.arm.q(),
+                    self.arm.qd(),
+                    &self.q_ref,
+                    &self.qd_ref,
+                    self.period,
+                    &mut self.tau,
+                )?;
                 self.wall(status.wall.force);
                 let status = safety.limit_torque(self.arm.q(), &mut self.tau, &mut self.command)?;
                 if let Some(v) = status.violation {

@@ -225,7 +225,7 @@ def test_off_the_paper_scenes_people_push_where_the_robot_is_wrong_and_learning_
 @pytest.mark.slow
 def test_with_a_second_learned_feature_learning_needs_less_effort_and_ends_closer() -> None:
     """Two-feature variations (the table's height learned too on the cup task, the cup's tilt on the
-    human task): on average over 3 people, in each of 2 variations of each. Not on the table task
+    human task): on average over 6 people, in each of 2 variations of each. Not on the table task
     with the tilt added, where learning needs more effort than impedance in 20 of 30 variations
     (docs/participant.md, "Scenes the person was checked on").
 

@@ -10,6 +10,8 @@ import numpy.typing as npt
 __all__ = [
     "FEATURE_NAMES",
     "FEATURE_PARAMETERS",
+    "GRID_TOLERANCE",
+    "MAX_LOG_ROWS",
     "DECLARED_KINDS",
     "DECLARED_PARAMETERS",
     "Deformation",
@@ -48,6 +50,11 @@ FEATURE_PARAMETERS: dict[str, tuple[str, ...]]
 DECLARED_KINDS: tuple[str, ...]
 #: Per declared kind, the names of its parameters.
 DECLARED_PARAMETERS: dict[str, tuple[str, ...]]
+
+#: A tick within this fraction of a period of a time grid counts as on it (phri_core).
+GRID_TOLERANCE: float
+#: Most rows of a control loop's log (phri_core).
+MAX_LOG_ROWS: int
 
 _Array = npt.ArrayLike
 _F64 = npt.NDArray[np.float64]

@@ -37,6 +37,11 @@ pub const MIN_WAYPOINT_SPACING: f64 = 1e-4;
 /// Longest duration of a trajectory [s] (about 11.6 days).
 pub const MAX_DURATION: f64 = 1e6;
 
+/// A tick within this fraction of a period of a time grid (the learner's samples, a loop's log)
+/// counts as on it: tick times carry rounding [-]. Python's control loop uses it too
+/// (`phri._phri.GRID_TOLERANCE`).
+pub const GRID_TOLERANCE: f64 = 1e-6;
+
 /// Checks `duration` [s] for `waypoints` evenly spaced waypoints (≥ 2) against
 /// [`MIN_WAYPOINT_SPACING`] and [`MAX_DURATION`].
 pub fn check_duration(duration: f64, waypoints: usize) -> Result<()> {

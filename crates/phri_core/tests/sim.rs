@@ -190,10 +190,22 @@ fn bad_loop_input_is_refused_by_name() {
         (LoopSettings { hold_time: -1.0, ..ok }, "hold_time"),
         (LoopSettings { log_period: 1e-4, ..ok }, "log_period"),
         (LoopSettings { sample_every: 0, ..ok }, "sample_every"),
+        // A log too long to make (about 56 TB): refused, not an aborted allocation.
+        (LoopSettings { duration: 1e10, ..ok }, "duration"),
+        (LoopSettings { duration: 1e300, ..ok }, "duration"),
     ] {
         assert_eq!(arg_of(SimulatedLoop::new(a(), bad, &start, &mut safety).unwrap_err()), arg);
     }
     assert_eq!(arg_of(SimulatedLoop::new(a(), ok, &[0.0; 6], &mut safety).unwrap_err()), "q_start");
+    // The simulated arm does not compensate gravity: a layer that subtracts g(q) would let it fall.
+    let mut compensating = SafetyLayer::new(
+        model.clone(),
+        model.frame_id("j2s7s300_end_effector").unwrap(),
+        safety.limits().clone(),
+        SafetyParams { gravity_compensated: true, ..SafetyParams::default() },
+    )
+    .unwrap();
+    assert_eq!(arg_of(SimulatedLoop::new(a(), ok, &start, &mut compensating).unwrap_err()), "safety");
     let mut sim = SimulatedLoop::new(a(), ok, &start, &mut safety).unwrap();
     // Tick 0 is a sample instant: one row of offsets is needed, not none.
     assert_eq!(sim.samples_before(20), 1);
@@ -202,4 +214,10 @@ fn bad_loop_input_is_refused_by_name() {
     assert_eq!(arg_of(e), "offsets");
     let e = sim.advance(20, Some(&[f64::NAN; 6]), &[0.0; 7], &mut learner, &mut controller, &mut safety).unwrap_err();
     assert_eq!(arg_of(e), "push");
+    let e = sim.advance(20, None, &[0.0; 7], &mut learner, &mut controller, &mut compensating).unwrap_err();
+    assert_eq!(arg_of(e), "safety");
+    let params = ImpedanceParams { gravity_compensation: false, ..ImpedanceParams::jaco2_default() };
+    let mut without_gravity = ImpedanceController::new(model.clone(), params).unwrap();
+    let e = sim.advance(20, None, &[0.0; 7], &mut learner, &mut without_gravity, &mut safety).unwrap_err();
+    assert_eq!(arg_of(e), "controller");
 }

@@ -54,6 +54,8 @@ fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<learner::PyLearnerHistory>()?;
     m.add_class::<sim::PySimulatedArm>()?;
     m.add_class::<sim::PySimulatedLoop>()?;
+    m.add("GRID_TOLERANCE", phri_core::sim::GRID_TOLERANCE)?;
+    m.add("MAX_LOG_ROWS", phri_core::sim::MAX_LOG_ROWS)?;
     m.add("UPDATE_RULES", pyo3::types::PyTuple::new(m.py(), phri_core::update::UpdateRule::NAMES)?)?;
     Ok(())
 }

@@ -52,7 +52,14 @@ from typing import Any
 
 import numpy as np
 
-from phri._phri import SAFETY_LIMITS, ImpedanceController, Learner, SafetyViolation
+from phri._phri import (
+    GRID_TOLERANCE,
+    MAX_LOG_ROWS,
+    SAFETY_LIMITS,
+    ImpedanceController,
+    Learner,
+    SafetyViolation,
+)
 from phri.control.backend import Backend, RobotState
 from phri.control.safety import LATE_AFTER, LATE_TICKS, SafetyLimits
 from phri.exceptions import (
@@ -81,12 +88,11 @@ LOG_RATE = 100.0
 #: Why the watchdog may stop the arm: the safety layer's limits (:data:`phri.control.SAFETY_LIMITS`),
 #: a lost connection, or the robot's own fault.
 STOP_REASONS = (*SAFETY_LIMITS, "connection_lost", "robot_fault")
-#: Most rows of a run's log (made at the start, about 300 bytes a row for 7 joints: 300 MB; 2.8
-#: hours at the default log rate): a longer run is refused before it starts, not a MemoryError.
-MAX_LOG_ROWS = 1_000_000
-#: A tick on the log's time grid within this fraction of a log period counts as on it (tick times
-#: carry rounding), as the learner's sample grid does.
-GRID_TOLERANCE = 1e-6
+# MAX_LOG_ROWS: most rows of a run's log (made at the start, about 300 bytes a row for 7 joints:
+# 300 MB; 2.8 hours at the default log rate): a longer run is refused before it starts, not a
+# MemoryError. GRID_TOLERANCE: a tick on the log's time grid within this fraction of a log period
+# counts as on it (tick times carry rounding), as the learner's sample grid does. Both are the
+# core's, which its simulated loop (phri.SimulatedLoop) and learner use.
 
 #: Called every tick with (tick index, state, log row written at this tick or -1), after the
 #: command is made and before it is written (a simulation logs what only it knows, renders frames).

@@ -85,6 +85,8 @@ def run_study(
     """
     # Before the folder is touched.
     _check_arguments(backend, workers, max_episodes, between_strategies, custom=runner is not None)
+    if simulator is None and config is not None:
+        simulator = config.simulator  # not saved with the study: a resumed folder's config lacks it
     if simulator is not None and simulator not in SIMULATORS:
         raise InvalidParameterError(f"simulator must be one of {SIMULATORS}, got {simulator!r}")
     began = time.perf_counter()

@@ -455,7 +455,7 @@ impl Learner {
         }
         // Sample instants lie on the grid k·period; a tick within 10⁻⁶ periods of one counts as on it
         // (tick times carry rounding). Missed instants are not replayed.
-        let position = t / self.params.sample_period + 1e-6;
+        let position = t / self.params.sample_period + crate::reference::GRID_TOLERANCE;
         if position < self.next_sample {
             self.continue_budgeted(t, &mut obs)?;
             self.last_observation = obs;
@@ -646,7 +646,7 @@ impl Learner {
         let outcome = match self.params.replan_latency {
             ReplanLatency::Fixed(latency) => {
                 // Due at t_request + L, with the sample grid's rounding slack.
-                if t + 1e-6 * self.params.sample_period < pending.t + latency {
+                if t + crate::reference::GRID_TOLERANCE * self.params.sample_period < pending.t + latency {
                     return Ok(());
                 }
                 worker.collect(pending.generation, true)

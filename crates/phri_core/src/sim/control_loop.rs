@@ -10,9 +10,11 @@ use crate::safety::{Limit, Quantity, SafetyLayer, Violation};
 use crate::sim::SimulatedArm;
 use crate::{FrameId, RobotData};
 
-/// A tick within this fraction of a log period of the log's grid counts as on it (tick times carry
-/// rounding), as the learner's sample grid does [-].
-pub const GRID_TOLERANCE: f64 = 1e-6;
+pub use crate::reference::GRID_TOLERANCE;
+
+/// Most rows of a motion's log (made at the start, about 300 bytes a row for 7 joints: 300 MB; 2.8
+/// hours at 100 Hz): a longer motion is refused before it starts (as the Python loop refuses it).
+pub const MAX_LOG_ROWS: usize = 1_000_000;
 
 /// How a simulated motion runs.
 #[derive(Debug, Clone, Copy)]
@@ -59,7 +61,7 @@ pub struct LoopLog {
     pub tau_ext: Vec<f64>,
     /// The wall's largest total force since the previous row [N].
     pub wall_force: Vec<f64>,
-    /// The person's wrench at the hand (force [N], torque [N·m], base frame; rows × 6), zero
+    /// The person's wrench at the hand (force [N], torque [N·m], in the base frame, the study's world frame; rows × 6), zero
     /// while nobody touches it, and whether anybody did.
     pub push: Vec<f64>,
     pub touched: Vec<bool>,
@@ -141,6 +143,23 @@ impl SimulatedLoop {
         if sample_every == 0 {
             return Err(PhriError::invalid("sample_every", "must be >= 1 tick"));
         }
+        let rows = (duration + hold_time) / log_period + 3.0;
+        if !(rows <= MAX_LOG_ROWS as f64) {
+            return Err(PhriError::invalid(
+                "duration",
+                format!(
+                    "+ hold_time ({duration} s + {hold_time} s) at a log period of {log_period} s would log more than \
+                     {MAX_LOG_ROWS} rows: run shorter motions or log less often"
+                ),
+            ));
+        }
+        let rows = rows as usize;
+        if !fits_simulated_arm(safety) {
+            return Err(PhriError::invalid(
+                "safety",
+                "must be made with gravity_compensated=False: the simulated arm does not compensate gravity",
+            ));
+        }
         if hand.0 >= arm.model().frames.len() {
             return Err(PhriError::invalid("hand", format!("is not a frame of robot '{}'", arm.model().name)));
         }
@@ -152,7 +171,6 @@ impl SimulatedLoop {
         let mut data = arm.model().data();
         safety.model().gravity_torques(q_start, &mut data, &mut at_rest)?;
         safety.reset(Some(&at_rest))?;
-        let rows = ((duration + hold_time) / log_period) as usize + 3;
         let log = LoopLog {
             t: Vec::with_capacity(rows),
             q: Vec::with_capacity(rows * n),
@@ -192,12 +210,13 @@ impl SimulatedLoop {
         })
     }
 
-    /// The index of the next tick to run (its state is the arm's now).
+    /// The index of the next tick to run (its state is the arm's now); once the motion is done, the
+    /// last tick's.
     pub fn tick(&self) -> u64 {
         self.k
     }
 
-    /// The next tick's robot time [s].
+    /// The robot time of [`tick`](Self::tick) [s].
     pub fn t(&self) -> f64 {
         self.k as f64 * self.period
     }
@@ -250,17 +269,18 @@ impl SimulatedLoop {
         &self.log
     }
 
-    /// The sensor samples among the ticks from the next one up to `until` (exclusive).
+    /// The sensor samples among the ticks from the next one up to `until` (exclusive); none once
+    /// the motion is done.
     pub fn samples_before(&self, until: u64) -> u64 {
         let every = self.settings.sample_every;
-        if until <= self.k {
+        if until <= self.k || self.phase == Phase::Done {
             return 0;
         }
         (until - 1) / every + 1 - self.k.div_ceil(every)
     }
 
     /// Runs the ticks from the next one up to tick `until` (exclusive), or to the motion's end,
-    /// with the person's wrench `push` at the hand (force [N], torque [N·m], base frame; None:
+    /// with the person's wrench `push` at the hand (force [N], torque [N·m], in the base frame, the study's world frame; None:
     /// nobody touches it) held throughout. `offsets` [N·m] holds the sensor's bias and noise for
     /// each sample instant among those ticks, row-major ([`samples_before`](Self::samples_before)
     /// rows of n): the measurement there is the offset plus Jᵀ·w at the hand.
@@ -282,7 +302,7 @@ impl SimulatedLoop {
             return Ok(());
         }
         let samples = self.samples_before(until) as usize;
-        if offsets.len() != samples * n {
+        if samples.checked_mul(n) != Some(offsets.len()) {
             return Err(PhriError::shape("offsets", format!("({samples}, {n})"), format!("{} values", offsets.len())));
         }
         if let Some(w) = push {
@@ -294,6 +314,15 @@ impl SimulatedLoop {
             if nq != n {
                 return Err(PhriError::shape(arg, format!("a robot of {n} joints"), format!("{nq} joints")));
             }
+        }
+        if !controller.params().gravity_compensation {
+            return Err(PhriError::invalid(
+                "controller",
+                "must be made with gravity_compensation=True: the simulated arm needs the law's g(q)",
+            ));
+        }
+        if !fits_simulated_arm(safety) {
+            return Err(PhriError::invalid("safety", "must be made with gravity_compensated=False"));
         }
         let mut sample = 0;
         while self.k < until && self.phase != Phase::Done {
@@ -478,6 +507,12 @@ impl SimulatedLoop {
         log.touched.push(push.is_some());
         self.wall_row = 0.0;
     }
+}
+
+/// Whether `safety` suits a simulated arm, which does not compensate gravity (the command is the
+/// whole torque).
+fn fits_simulated_arm(safety: &SafetyLayer) -> bool {
+    !safety.params().gravity_compensated
 }
 
 /// Whether the state behind `v` cannot be held from: a non-finite time, position or velocity, or a

@@ -13,4 +13,4 @@ mod arm;
 mod control_loop;
 
 pub use arm::SimulatedArm;
-pub use control_loop::{LoopLog, LoopSettings, SimulatedLoop, Stop, GRID_TOLERANCE};
+pub use control_loop::{LoopLog, LoopSettings, SimulatedLoop, Stop, GRID_TOLERANCE, MAX_LOG_ROWS};

@@ -8,14 +8,11 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::Arc;
 
-use phri_core::deform::{DeformParams, Deformation};
 use phri_core::impedance::{Gain, ImpedanceController, ImpedanceParams};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams, ReplanLatency};
 use phri_core::reference::{Interpolation, TimedTrajectory};
 use phri_core::safety::{SafetyLayer, SafetyLimits, SafetyParams, ToolBox};
-use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
-use phri_core::update::UpdateRule;
 use phri_core::wall::{VirtualWall, WallParams};
 
 struct Counting;
@@ -57,17 +54,8 @@ fn learner() -> Learner {
 
 /// The table task's learner sampling every tick, replanning as `latency` says.
 fn learner_with(latency: ReplanLatency) -> Learner {
-    let model = Arc::new(common::jaco2());
-    let frame = model.frame_id("j2s7s300_link_7").unwrap();
-    let fs = common::study::study_features(model, frame, &["efficiency", "table"]);
-    let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
-    let update = common::one_feature_update(2.0, 1.0, UpdateRule::All);
-    let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
-    let deformation = Deformation::new(DeformParams::default()).unwrap();
-    let start = common::deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);
-    let goal = common::deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]);
     let params = LearnerParams { sample_period: 1e-3, replan_latency: latency, ..Default::default() };
-    Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &start, &goal).unwrap()
+    common::table_learner(Arc::new(common::jaco2()), params)
 }
 
 #[test]

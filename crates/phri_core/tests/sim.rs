@@ -5,14 +5,10 @@ mod common;
 
 use std::sync::Arc;
 
-use phri_core::deform::{DeformParams, Deformation};
 use phri_core::impedance::{ImpedanceController, ImpedanceParams};
-use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
 use phri_core::safety::{Limit, SafetyLayer, SafetyLimits, SafetyParams};
 use phri_core::sim::{LoopSettings, SimulatedArm, SimulatedLoop};
-use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
-use phri_core::update::UpdateRule;
 use phri_core::{PhriError, RobotModel};
 
 const Q: [f64; 7] = [0.1, 2.9, 0.2, 1.3, -2.0, 1.5, 0.4];
@@ -98,16 +94,7 @@ fn a_step_that_would_leave_a_non_finite_state_is_an_error_and_changes_nothing() 
 /// The study table task's robot side: a learner that only tracks (impedance), the law and the
 /// safety layer of the arm carrying its cup.
 fn robot_side(model: &Arc<RobotModel>, velocity_limit: f64) -> (Learner, ImpedanceController, SafetyLayer) {
-    let frame = model.frame_id("j2s7s300_link_7").unwrap();
-    let fs = common::study::study_features(model.clone(), frame, &["efficiency", "table"]);
-    let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
-    let update = common::one_feature_update(2.0, 1.0, UpdateRule::All);
-    let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
-    let deformation = Deformation::new(DeformParams::default()).unwrap();
-    let start = common::deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);
-    let goal = common::deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]);
-    let params = LearnerParams { learning: false, ..Default::default() };
-    let learner = Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &start, &goal).unwrap();
+    let learner = common::table_learner(model.clone(), LearnerParams { learning: false, ..Default::default() });
     let controller = ImpedanceController::new(model.clone(), ImpedanceParams::jaco2_default()).unwrap();
     let tool = model.frame_id("j2s7s300_end_effector").unwrap();
     let limits = SafetyLimits {

@@ -125,17 +125,13 @@ def run_native(
             loop.advance(until, wrench, offsets, learner, controller, safety)
     except BaseException as e:  # noqa: BLE001 - kept with the log so far; the caller re-raises it
         error = e
-    return NativeRun(_result(loop, safety), *_pushes(loop), error)
-
-
-def _pushes(loop: SimulatedLoop) -> tuple[np.ndarray, np.ndarray]:
     log = loop.log()
-    return log["push"], log["touched"]
+    return NativeRun(_result(loop, log, safety), log["push"], log["touched"], error)
 
 
-def _result(loop: SimulatedLoop, safety: object) -> LoopResult:
-    """The run as a :class:`phri.control.LoopResult`, its stop logged as the loop logs one."""
-    log = loop.log()
+def _result(loop: SimulatedLoop, log: dict[str, np.ndarray], safety: object) -> LoopResult:
+    """The run as a :class:`phri.control.LoopResult` (`log`: the loop's), its stop logged as the
+    loop logs one."""
     result = LoopResult(
         ticks=loop.ticks,
         log={key: log[key] for key in ("t", "q", "qd", "q_ref", "tau", "tau_ext", "wall_force")},

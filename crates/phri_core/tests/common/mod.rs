@@ -47,3 +47,23 @@ pub fn within_limits(model: &RobotModel, u: &[f64]) -> Vec<f64> {
         .map(|(j, &u)| if j.lower.is_finite() { j.lower + u * (j.upper - j.lower) } else { u * std::f64::consts::TAU })
         .collect()
 }
+
+/// The study table task's learner on `model` (features ["efficiency", "table"] at link_7, N = 31,
+/// initial weights [1, 0], the original thresholds and deformation) with `params`.
+pub fn table_learner(
+    model: std::sync::Arc<RobotModel>,
+    params: phri_core::learner::LearnerParams,
+) -> phri_core::learner::Learner {
+    use phri_core::deform::{DeformParams, Deformation};
+    use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
+    use phri_core::trajopt::{TrajectoryOptimizer, TrajoptParams};
+    let frame = model.frame_id("j2s7s300_link_7").unwrap();
+    let fs = study::study_features(model, frame, &["efficiency", "table"]);
+    let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
+    let update = one_feature_update(2.0, 1.0, phri_core::update::UpdateRule::All);
+    let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
+    let deformation = Deformation::new(DeformParams::default()).unwrap();
+    let start = deg([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8]);
+    let goal = deg([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0]);
+    phri_core::learner::Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &start, &goal).unwrap()
+}

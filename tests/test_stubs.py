@@ -38,4 +38,4 @@ def test_stub_literal_matches_the_core(alias, constant):
 
 def test_the_core_names_are_the_papers():
     assert _phri.FEATURE_NAMES == ("efficiency", "table", "coffee", "coffee_dot", "laptop", "human", "origin")
-    assert _phri.UPDATE_RULES == ("all", "max", "confidence")
+    assert _phri.UPDATE_RULES == ("all", "max", "confidence", "beta")

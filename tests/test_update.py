@@ -212,7 +212,7 @@ def test_relevance_bad_input():
 
 def test_unknown_rule_names_the_allowed_values():
     with pytest.raises(
-        ex.InvalidParameterError, match=r"^rule must be one of 'all', 'max', 'confidence', got 'MAX'"
+        ex.InvalidParameterError, match=r"^rule must be one of 'all', 'max', 'confidence', 'beta', got 'MAX'"
     ):
         phri.WeightUpdate([1.0], [0.0], [1.0], rule="MAX")
 

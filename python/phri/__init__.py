@@ -10,6 +10,10 @@ import logging
 
 from phri import exceptions
 from phri._phri import (
+    BETA_FULL,
+    BETA_MAX,
+    BETA_THRESHOLD,
+    DEFAULT_EFFORT,
     Deformation,
     Features,
     ImpedanceController,
@@ -27,6 +31,7 @@ from phri._phri import (
     UpdateInfo,
     WeightUpdate,
     __version__,
+    rationality,
     relevance,
 )
 from phri.config import Task, load_task, task_names
@@ -36,6 +41,10 @@ from phri.feature import Feature, feature
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 __all__ = [
+    "BETA_FULL",
+    "BETA_MAX",
+    "BETA_THRESHOLD",
+    "DEFAULT_EFFORT",
     "Deformation",
     "Feature",
     "Features",
@@ -59,5 +68,6 @@ __all__ = [
     "feature",
     "load_task",
     "task_names",
+    "rationality",
     "relevance",
 ]

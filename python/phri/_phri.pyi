@@ -8,6 +8,10 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
+    "BETA_FULL",
+    "BETA_MAX",
+    "BETA_THRESHOLD",
+    "DEFAULT_EFFORT",
     "FEATURE_NAMES",
     "FEATURE_PARAMETERS",
     "GRID_TOLERANCE",
@@ -36,6 +40,7 @@ __all__ = [
     "UpdateInfo",
     "WeightUpdate",
     "__version__",
+    "rationality",
     "relevance",
 ]
 
@@ -61,7 +66,7 @@ _F64 = npt.NDArray[np.float64]
 _Triple = tuple[_F64, _F64, _F64]
 
 #: The weight-update rules' names (defined once, in the core's `UpdateRule::NAMES`).
-_UpdateRule = Literal["all", "max", "confidence"]
+_UpdateRule = Literal["all", "max", "confidence", "beta"]
 UPDATE_RULES: tuple[_UpdateRule, ...]
 
 @final
@@ -251,6 +256,16 @@ class WeightUpdate:
     def __len__(self) -> int: ...
 
 def relevance(delta_phi: _Array, sensitivity: _Array, u_h: _Array) -> _F64: ...
+def rationality(sensitivity: _Array, learned: Sequence[bool], u_h: _Array) -> tuple[float, float, int]: ...
+
+#: Below this β̂ a push is unexplained by the learned features (phri_core's belief module).
+BETA_THRESHOLD: float
+#: At and above this β̂ the "beta" rule takes the paper's full step.
+BETA_FULL: float
+#: β̂ of a push the features explain entirely.
+BETA_MAX: float
+#: Default effort weight λ of the observation model [1/(N·m)²].
+DEFAULT_EFFORT: float
 
 @final
 class InteractionDetector:
@@ -554,6 +569,8 @@ class Learner:
         seeds: int = 0,
         replan_latency: float | None = 0.0,
         worker_spin: float = 0.0,
+        effort: float = 0.02,
+        risk: _Array | None = None,
     ) -> Learner: ...
     def observe(self, t: float, tau_measured: _Array) -> tuple[bool, bool, bool]:
         """(sampled, interacted, replanned); replanned: a replan's outcome arrived at this call
@@ -580,6 +597,11 @@ class Learner:
         """Whether the last ``observe`` adopted a new plan."""
     @property
     def replan_latency(self) -> float | None: ...
+    def belief(self) -> tuple[_F64, _F64]: ...
+    @property
+    def plan_weights(self) -> _F64: ...
+    @property
+    def effort(self) -> float: ...
     def history(self) -> LearnerHistory: ...
     def _debug_stall_worker(self, seconds: float) -> None:
         """Testing only: the worker's next replan first stalls for ``seconds`` [s]."""
@@ -606,6 +628,12 @@ class LearnerHistory:
     def rejected_t(self) -> _F64: ...
     @property
     def rejected(self) -> list[str]: ...
+    @property
+    def beta(self) -> _F64: ...
+    @property
+    def explained(self) -> _F64: ...
+    @property
+    def covariance(self) -> _F64: ...
     @property
     def plan_t(self) -> _F64: ...
     @property

@@ -9,6 +9,7 @@
 // Kernels index several parallel per-joint slices in one loop; iterator zips would obscure them.
 #![allow(clippy::needless_range_loop)]
 
+pub mod belief;
 pub mod collision;
 pub mod data;
 pub mod deform;

@@ -22,13 +22,17 @@ pub enum UpdateRule {
     /// (‖u*_k‖/‖u_H‖)² of the applied torque that the smallest torque u*_k producing the same change
     /// of feature k would need (after Bobu et al., CoRL 2018, without their fitted β model).
     Confidence,
+    /// Every learned weight, the step scaled by how well the learned features explain the push:
+    /// min(1, β̂ / [`crate::belief::BETA_FULL`]) with β̂ the push's rationality
+    /// ([`crate::belief::rationality`], after Bobu et al., T-RO 2020), the same for every feature.
+    Beta,
 }
 
 impl UpdateRule {
     /// Every rule, in the order of [`UpdateRule::NAMES`].
-    pub const ALL: [UpdateRule; 3] = [UpdateRule::All, UpdateRule::Max, UpdateRule::Confidence];
+    pub const ALL: [UpdateRule; 4] = [UpdateRule::All, UpdateRule::Max, UpdateRule::Confidence, UpdateRule::Beta];
     /// The rules' names, as task files, study files and the Python API spell them.
-    pub const NAMES: [&'static str; 3] = ["all", "max", "confidence"];
+    pub const NAMES: [&'static str; 4] = ["all", "max", "confidence", "beta"];
 
     /// The rule's name.
     pub fn name(self) -> &'static str {
@@ -36,7 +40,15 @@ impl UpdateRule {
             UpdateRule::All => UpdateRule::NAMES[0],
             UpdateRule::Max => UpdateRule::NAMES[1],
             UpdateRule::Confidence => UpdateRule::NAMES[2],
+            UpdateRule::Beta => UpdateRule::NAMES[3],
         }
+    }
+
+    /// Whether the rule scales its steps by a per-feature factor (`WeightUpdate::apply`'s
+    /// `relevance`): the relevance for [`UpdateRule::Confidence`], the step scale of the push's β̂
+    /// for [`UpdateRule::Beta`].
+    pub fn scales_steps(self) -> bool {
+        matches!(self, UpdateRule::Confidence | UpdateRule::Beta)
     }
 
     /// The rule named `name`, or an InvalidParameter error naming `arg` and the known rules.
@@ -145,8 +157,9 @@ impl WeightUpdate {
         clipped
     }
 
-    /// One step w ← clip(w − α ⊙ ΔΦ) with ΔΦ = Φ(ξ_H) − Φ(ξ_R). `relevance` (per feature, in [0, 1])
-    /// is required by [`UpdateRule::Confidence`] and ignored by the others.
+    /// One step w ← clip(w − α ⊙ ΔΦ) with ΔΦ = Φ(ξ_H) − Φ(ξ_R). `relevance` (per feature, in [0, 1]:
+    /// the factor on each step) is required by [`UpdateRule::Confidence`] and [`UpdateRule::Beta`]
+    /// and ignored by the others.
     pub fn apply(&self, weights: &mut [f64], delta_phi: &[f64], relevance: Option<&[f64]>) -> Result<UpdateInfo> {
         let k = self.len();
         check_vector("weights", weights, k)?;
@@ -163,15 +176,15 @@ impl WeightUpdate {
                 .map(|(i, _)| i),
             _ => None,
         };
-        let relevance = match (p.rule, relevance) {
-            (UpdateRule::Confidence, Some(r)) => {
+        let relevance = match (p.rule.scales_steps(), relevance) {
+            (true, Some(r)) => {
                 check_vector("relevance", r, k)?;
                 Some(r)
             }
-            (UpdateRule::Confidence, None) => {
-                return Err(PhriError::invalid("relevance", "is required by the confidence update rule"))
+            (true, None) => {
+                return Err(PhriError::invalid("relevance", format!("is required by the {} update rule", p.rule.name())))
             }
-            _ => None,
+            (false, _) => None,
         };
         let moves = |i: usize| p.learned[i] && (p.rule != UpdateRule::Max || chosen == Some(i));
         let target = |i: usize, w: f64| w - p.step[i] * relevance.map_or(1.0, |r| r[i].clamp(0.0, 1.0)) * delta_phi[i];

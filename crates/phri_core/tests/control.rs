@@ -450,11 +450,11 @@ fn a_blend_past_the_plans_end_keeps_to_the_speed_limits_and_any_blend_is_finite(
 
 #[test]
 fn update_rules_are_named_once_and_round_trip() {
-    assert_eq!(UpdateRule::NAMES, ["all", "max", "confidence"]);
+    assert_eq!(UpdateRule::NAMES, ["all", "max", "confidence", "beta"]);
     for (rule, name) in UpdateRule::ALL.iter().zip(UpdateRule::NAMES) {
         assert_eq!(rule.name(), name);
         assert_eq!(UpdateRule::from_name("rule", name).unwrap(), *rule);
     }
     let err = UpdateRule::from_name("rule", "MAX").unwrap_err();
-    assert_eq!(err.to_string(), "rule must be one of 'all', 'max', 'confidence', got 'MAX'");
+    assert_eq!(err.to_string(), "rule must be one of 'all', 'max', 'confidence', 'beta', got 'MAX'");
 }

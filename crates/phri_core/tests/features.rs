@@ -109,6 +109,8 @@ proptest! {
         let h = 1e-6;
         let (mut p0, mut pp, mut pm) = (vec![0.0; k_len], vec![0.0; k_len], vec![0.0; k_len]);
         fs.phi(&xi, &mut p0).unwrap();
+        // The learner takes Φ(ξ_R) from phi_gradient: it must be phi's, to the bit.
+        prop_assert_eq!(&phi, &p0);
         let (mut checked, mut kinks) = (0, 0);
         for v in 0..xi.len() {
             let mut x = xi.clone();

@@ -5,6 +5,7 @@
 
 mod common;
 
+use phri_core::belief::{rationality, Belief, BETA_MAX};
 use phri_core::deform::{DeformParams, Deformation, EndRule, Norm};
 use phri_core::update::{relevance, UpdateParams, UpdateRule, WeightUpdate};
 use phri_core::{FrameId, RobotModel};
@@ -161,7 +162,7 @@ proptest! {
         upper in prop::collection::vec(any_f64(), 0..7),
         learned in prop::collection::vec(any::<bool>(), 0..7),
         ranges in prop::collection::vec(any_f64(), 0..7),
-        rule in prop::sample::select(vec![UpdateRule::All, UpdateRule::Max, UpdateRule::Confidence]),
+        rule in prop::sample::select(UpdateRule::ALL.to_vec()),
         weights in prop::collection::vec(any_f64(), 0..7),
         delta_phi in prop::collection::vec(any_f64(), 0..7),
         confidence in prop::option::of(prop::collection::vec(any_f64(), 0..7)),
@@ -181,6 +182,35 @@ proptest! {
         match update.apply(&mut w, &fit(&delta_phi, 0.0), confidence.as_deref()) {
             Ok(_) => prop_assert!(w.iter().all(|v| !v.is_nan()), "updated into {w:?}"),
             Err(_) => prop_assert!(w.iter().zip(&before).all(|(a, b)| a.to_bits() == b.to_bits()), "an error changed the weights"),
+        }
+    }
+
+    #[test]
+    fn rationality_and_the_belief_are_finite_or_an_error(
+        learned in prop::collection::vec(any::<bool>(), 0..5),
+        sensitivity in prop::collection::vec(any_f64(), 0..40),
+        u_h in prop::collection::vec(any_f64(), 0..8),
+        step in prop::collection::vec(any_f64(), 0..5),
+        effort in any_f64(),
+    ) {
+        if let Ok(r) = rationality(&sensitivity, &learned, &u_h) {
+            prop_assert!((0.0..=BETA_MAX).contains(&r.beta) && (0.0..=1.0).contains(&r.explained), "{r:?}");
+        }
+        let k = learned.len();
+        let params = UpdateParams {
+            step: (0..k).map(|i| step.get(i).copied().unwrap_or(1.0)).collect(),
+            lower: vec![-1.0; k],
+            upper: vec![1.0; k],
+            learned: learned.clone(),
+            ranges: vec![1.0; k],
+            rule: UpdateRule::All,
+        };
+        let Ok(update) = WeightUpdate::new(params) else { return Ok(()) };
+        let Ok(mut belief) = Belief::new(update.params(), effort) else { return Ok(()) };
+        let before = belief.covariance().to_vec();
+        match belief.observe(&sensitivity, u_h.len()) {
+            Ok(()) => prop_assert!(belief.covariance().iter().all(|v| v.is_finite()), "{:?}", belief.covariance()),
+            Err(_) => prop_assert_eq!(belief.covariance(), &before[..]),
         }
     }
 

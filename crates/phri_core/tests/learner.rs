@@ -93,7 +93,7 @@ fn scripted_pushes_move_each_task_weight_the_right_way() {
         ("human", PICK_SHELF, PLACE_HIGHER, 100.0, 10.0),
     ];
     for (feature, start, goal, gain, upper) in cases {
-        for rule in [UpdateRule::All, UpdateRule::Max, UpdateRule::Confidence] {
+        for rule in UpdateRule::ALL {
             let mut l = learner(feature, start, goal, gain, upper, rule, true);
             let mut replans = 0;
             for k in 0..10 {

@@ -3,6 +3,7 @@
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadwriteArray1, PyUntypedArrayMethods};
+use phri_core::belief::DEFAULT_EFFORT;
 use phri_core::learner::{
     History, Interaction, Learner, LearnerParams, ReplanLatency, DEFAULT_TRANSITION_SPEED, MAX_SEEDS, TIME_SLACK,
 };
@@ -64,6 +65,7 @@ pub struct PyLearner {
 
 // The signature spells the default out so that Python's introspection shows it.
 const _: () = assert!(DEFAULT_TRANSITION_SPEED == 0.8);
+const _: () = assert!(DEFAULT_EFFORT == 0.02);
 
 fn replan_iterations_arg(value: &Bound<'_, PyAny>) -> PyResult<usize> {
     count("replan_iterations", value, usize::MAX)
@@ -139,12 +141,13 @@ impl PyLearner {
     #[pyo3(signature = (
         features, deformation, update, detector, optimizer, weights, start, goal, *,
         duration = 15.0, sample_period = 0.1, interpolation = "cubic", learning = true,
-        transition_speed = 0.8, replan_iterations = 0, seeds = 0, replan_latency = Some(0.0), worker_spin = 0.0
+        transition_speed = 0.8, replan_iterations = 0, seeds = 0, replan_latency = Some(0.0), worker_spin = 0.0,
+        effort = DEFAULT_EFFORT, risk = None
     ))]
     // Spelled out: the generated one would show `Some(0.0)` as `...`.
     #[pyo3(text_signature = "(features, deformation, update, detector, optimizer, weights, start, goal, *, \
         duration=15.0, sample_period=0.1, interpolation='cubic', learning=True, transition_speed=0.8, \
-        replan_iterations=0, seeds=0, replan_latency=0.0, worker_spin=0.0)")]
+        replan_iterations=0, seeds=0, replan_latency=0.0, worker_spin=0.0, effort=0.02, risk=None)")]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -165,6 +168,8 @@ impl PyLearner {
         #[pyo3(from_py_with = seeds_arg)] seeds: usize,
         replan_latency: Option<f64>,
         worker_spin: f64,
+        effort: f64,
+        risk: Option<ArrayIn<'_>>,
     ) -> PyResult<Self> {
         let interpolation = match interpolation {
             "cubic" => Interpolation::Cubic,
@@ -179,6 +184,10 @@ impl PyLearner {
         let start = vector("start", &start, n)?.into_owned();
         let goal = vector("goal", &goal, n)?.into_owned();
         let replan_latency = replan_latency.map_or(ReplanLatency::WallClock, ReplanLatency::Fixed);
+        let risk = match &risk {
+            Some(r) => vector("risk", r, set.len())?.into_owned(),
+            None => Vec::new(),
+        };
         let params = LearnerParams {
             learning,
             sample_period,
@@ -189,6 +198,8 @@ impl PyLearner {
             seeds,
             replan_latency,
             worker_spin,
+            effort,
+            risk,
         };
         let (deformation, update, detector, optimizer) =
             (deformation.deformation.clone(), update.update.clone(), detector.detector.clone(), optimizer.optimizer.clone());
@@ -249,6 +260,31 @@ impl PyLearner {
     #[getter]
     fn weights<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         PyArray1::from_slice(py, self.learner(py).weights())
+    }
+
+    /// The belief over the cost weights: (mean (K,), covariance (K, K) [weight²]). The mean is the
+    /// estimate `weights` (the paper's MAP, eq. 13); the covariance is the Laplace posterior's of
+    /// the paper's observation model (eq. 8-11) with its normaliser kept to second order: the prior
+    /// diag(step) on the learned weights, shrunk by S Sᵀ/(2·effort) at every push with S = ∂ΔΦ/∂u_H.
+    /// Weights that are not learned have no variance.
+    fn belief<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
+        let learner = self.learner(py);
+        let (mean, covariance) = learner.belief();
+        let k = mean.len();
+        Ok((PyArray1::from_slice(py, mean), PyArray1::from_slice(py, covariance).reshape([k, k])?))
+    }
+
+    /// The cost weights the planner plans with: `weights`, or with `risk` the risk-aware
+    /// w + risk ⊙ σ clipped to the bounds (σ the belief's standard deviations).
+    #[getter]
+    fn plan_weights<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, self.learner(py).plan_weights())
+    }
+
+    /// Effort weight λ of the observation model (eq. 8) [1/(N·m)²], for the belief's covariance.
+    #[getter]
+    fn effort(&self, py: Python<'_>) -> f64 {
+        self.learner(py).params().effort
     }
 
     /// Current plan ξ_R, (N, n) [rad].
@@ -341,7 +377,9 @@ impl PyLearner {
 /// (None where there was none). `plan_t` (P,) the time each plan took effect [s] and `plans`
 /// (P, N, n) the plans [rad]; the first is the initial plan at t = 0. `rejected_t` (R,) the times of
 /// replans that were not adopted because they were infeasible (the robot kept tracking its last
-/// feasible plan) [s], and `rejected` (R,) why, naming the violated pair.
+/// feasible plan) [s], and `rejected` (R,) why, naming the violated pair. `beta` and `explained`
+/// (M,) how well the learned features explained each push (`phri.rationality`) and `covariance`
+/// (M, K, K) the belief's covariance after it, NaN where no deformation was made.
 #[pyclass(name = "LearnerHistory", module = "phri._phri", frozen, get_all)]
 pub struct PyLearnerHistory {
     /// (M,) each sampled interaction's time [s].
@@ -366,6 +404,12 @@ pub struct PyLearnerHistory {
     rejected_t: Py<PyArray1<f64>>,
     /// (R,) why each of those replans was rejected, naming the violated pair.
     rejected: Vec<String>,
+    /// (M,) each push's rationality β̂ (`phri.rationality`); NaN where no deformation was made.
+    beta: Py<PyArray1<f64>>,
+    /// (M,) the fraction of each push's squared torque the learned features explain; NaN where none.
+    explained: Py<PyArray1<f64>>,
+    /// (M, K, K) the belief's covariance after each push [weight²]; NaN where no deformation was made.
+    covariance: Py<PyArray3<f64>>,
 }
 
 impl PyLearnerHistory {
@@ -404,6 +448,9 @@ impl PyLearnerHistory {
             plans: PyArray1::from_vec(py, plan_values).reshape([plans.len(), waypoints, n])?.unbind(),
             rejected_t: PyArray1::from_iter(py, history.rejected.iter().map(|r| r.t)).unbind(),
             rejected: history.rejected.iter().map(|r| r.reason.clone()).collect(),
+            beta: PyArray1::from_iter(py, records.iter().map(|r| r.rationality.map_or(f64::NAN, |b| b.beta))).unbind(),
+            explained: PyArray1::from_iter(py, records.iter().map(|r| r.rationality.map_or(f64::NAN, |b| b.explained))).unbind(),
+            covariance: rows(k * k, &|r| &r.covariance, true)?.bind(py).reshape([m, k, k])?.unbind(),
         })
     }
 }

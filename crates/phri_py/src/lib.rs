@@ -10,6 +10,7 @@
 use pyo3::prelude::*;
 
 mod arrays;
+mod belief;
 mod deform;
 mod errors;
 mod features;
@@ -40,6 +41,8 @@ fn _phri(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<update::PyWeightUpdate>()?;
     m.add_class::<update::PyUpdateInfo>()?;
     m.add_function(wrap_pyfunction!(update::relevance, m)?)?;
+    m.add_function(wrap_pyfunction!(belief::rationality, m)?)?;
+    belief::add_constants(m)?;
     m.add_class::<interaction::PyInteractionDetector>()?;
     m.add_class::<reference::PyTimedTrajectory>()?;
     m.add_class::<impedance::PyImpedanceController>()?;

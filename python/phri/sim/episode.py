@@ -116,7 +116,8 @@ class EpisodeConfig:
     #: The per-joint bias the detector subtracts from each measurement before thresholding [N·m]
     #: (None: none); set it to sensor_bias for a calibrated sensor.
     detector_bias: tuple[float, ...] | None = None
-    #: Update rule: "all" (the paper), "max", or "confidence".
+    #: Update rule: "all" (the paper), "max", "confidence" or "beta" (steps scaled by how well the
+    #: learned features explain each push; :mod:`phri.belief`).
     rule: str = "all"
     #: The simulated person corrects one feature at a time, the most visible first, until it looks
     #: fixed (:class:`~phri.sim.participant.Participant`'s ``one_at_a_time``; HRI 2018). The learner
@@ -687,12 +688,16 @@ def _history(learner: Learner, initial_weights: np.ndarray) -> dict[str, np.ndar
     """The learner's history as log arrays: each interaction sample's time [s], measured torque
     [N·m] and feature change ΔΦ = Φ(ξ_H) − Φ(ξ_R) (the update's input; NaN where no deformation
     was made: under impedance, or past the deformation's last window), the weights after each (from
-    t = 0, the initial weights), and each replan's time and plan."""
+    t = 0, the initial weights), each push's rationality β̂ and explained fraction and the belief's
+    covariance after it (NaN where no deformation was made), and each replan's time and plan."""
     history = learner.history()
     return {
         "interaction_t": history.t,
         "interaction_u_h": history.u_h,
         "interaction_delta_phi": history.delta_phi,
+        "interaction_beta": history.beta,
+        "interaction_explained": history.explained,
+        "belief_covariance": history.covariance,
         "weights_t": np.concatenate([[0.0], history.t]),
         "weights": np.vstack([initial_weights, history.weights]),
         "plan_t": history.plan_t,

@@ -1,6 +1,7 @@
 //! What the learner records, for logs and plots: every sampled interaction, every plan that took
 //! effect and every replan it refused.
 
+use crate::belief::Rationality;
 use crate::trajopt::TrajoptInfo;
 use crate::update::UpdateInfo;
 
@@ -22,6 +23,10 @@ pub struct Interaction {
     /// (`LearnerParams::replan_latency` not 0) it is filled in when its plan is adopted or
     /// rejected, and stays `None` if a newer interaction superseded it first.
     pub replan: Option<TrajoptInfo>,
+    /// How well the learned features explain the push (None where no deformation was made).
+    pub rationality: Option<Rationality>,
+    /// The belief's covariance after the update, K × K row-major (empty where none was made).
+    pub covariance: Vec<f64>,
 }
 
 /// A replan the learner did not adopt because it was not feasible (see

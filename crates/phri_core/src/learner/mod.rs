@@ -32,6 +32,7 @@ use planner::Planner;
 use seeds::Seeds;
 use worker::{Outcome, ReplanWorker};
 
+use crate::belief::{rationality, Belief, DEFAULT_EFFORT};
 use crate::deform::Deformation;
 use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::features::FeatureSet;
@@ -111,6 +112,14 @@ pub struct LearnerParams {
     /// busy: use it on a machine with a core to spare for the worker, never where the spinning
     /// would take the control loop's or the simulator's core. Worker modes only.
     pub worker_spin: f64,
+    /// Effort weight λ of the observation model (paper eq. 8) [1/(N·m)²], for the belief's
+    /// covariance ([`crate::belief`]); finite and > 0.
+    pub effort: f64,
+    /// Risk-aware planning: plan with w + k ⊙ σ (clipped to the bounds), k per feature, σ the
+    /// belief's standard deviations; empty (the default): plan with the estimate w, as the paper.
+    /// A k > 0 plans as if the feature mattered more than the estimate says, by k standard
+    /// deviations; features with no variance (not learned) are planned at w.
+    pub risk: Vec<f64>,
 }
 
 /// Most seed plans a learner keeps (`LearnerParams::seeds`).
@@ -139,6 +148,8 @@ impl Default for LearnerParams {
             seeds: 0,
             replan_latency: ReplanLatency::default(),
             worker_spin: 0.0,
+            effort: DEFAULT_EFFORT,
+            risk: Vec::new(),
         }
     }
 }
@@ -186,6 +197,10 @@ pub struct Learner {
     detector: InteractionDetector,
     replanner: Replanner,
     weights: Vec<f64>,
+    /// The Gaussian belief over the weights (mean: `weights`).
+    belief: Belief,
+    /// The weights the planner plans with: `weights`, or with `LearnerParams::risk`, w + k ⊙ σ.
+    plan_weights: Vec<f64>,
     plan: TimedTrajectory,
     /// What `reset` returns to.
     initial_weights: Vec<f64>,
@@ -223,7 +238,10 @@ pub struct Learner {
     jacobian: Vec<f64>,
     sensitivity: Vec<f64>,
     relevance: Vec<f64>,
+    std: Vec<f64>,
     u_h: Vec<f64>,
+    /// The sampled torque less the detector's bias, on every joint (β̂'s push) [N·m].
+    push: Vec<f64>,
 }
 
 impl Learner {
@@ -260,17 +278,24 @@ impl Learner {
         check_vector("weights", weights, k)?;
         let mut weights = weights.to_vec();
         update.clip(&mut weights);
+        let belief = Belief::new(update.params(), params.effort)?;
+        if !params.risk.is_empty() {
+            check_vector("risk", &params.risk, k)?;
+            check_finite("risk", &params.risk)?;
+        }
+        let mut std = vec![0.0; k];
+        let plan_weights = planning_weights(&params.risk, &update, &belief, &weights, &mut std)?;
         let m = optimizer.waypoints();
         let full_cap = optimizer.params().max_iterations;
         let mut levels = optimizer.plan_levels();
-        let info = optimizer.solve_levels(&mut features, &weights, start, goal, None, &mut levels)?;
+        let info = optimizer.solve_levels(&mut features, &plan_weights, start, goal, None, &mut levels)?;
         if !info.feasible {
             return Err(PhriError::Planning {
                 reason: format!("the initial plan is not safe to track: {}", infeasibility(&info, &optimizer)),
             });
         }
         let plan0 = levels.plan().to_vec();
-        let seeds = Seeds::plan(params.seeds, &update, &weights, &mut features, &mut optimizer, start, goal)?;
+        let seeds = Seeds::plan(params.seeds, &update, &plan_weights, &mut features, &mut optimizer, start, goal)?;
         if params.replan_iterations > 0 {
             // The initial plan converged above; replans keep to the per-tick budget.
             optimizer.set_max_iterations(params.replan_iterations.min(full_cap))?;
@@ -295,6 +320,8 @@ impl Learner {
             replanner,
             initial_weights: weights.clone(),
             weights,
+            belief,
+            plan_weights,
             initial_plan: plan.clone(),
             plan,
             next_sample: 0.0,
@@ -318,7 +345,9 @@ impl Learner {
             jacobian: vec![0.0; k * m * n],
             sensitivity: vec![0.0; k * n],
             relevance: vec![0.0; k],
+            std,
             u_h: vec![0.0; n],
+            push: vec![0.0; n],
             history,
             params,
         })
@@ -331,6 +360,18 @@ impl Learner {
     /// Current weights w (cost form).
     pub fn weights(&self) -> &[f64] {
         &self.weights
+    }
+
+    /// The belief over the weights: its mean (the estimate, [`Learner::weights`]) and covariance
+    /// Σ (K × K row-major [weight²]; see [`crate::belief`]).
+    pub fn belief(&self) -> (&[f64], &[f64]) {
+        (&self.weights, self.belief.covariance())
+    }
+
+    /// The weights the planner plans with: the estimate, or with `LearnerParams::risk` the
+    /// risk-aware w + k ⊙ σ.
+    pub fn plan_weights(&self) -> &[f64] {
+        &self.plan_weights
     }
 
     /// Current plan ξ_R, N × n row-major.
@@ -395,6 +436,11 @@ impl Learner {
             Replanner::Worker(worker) => worker.cancel(),
         }
         self.weights.clone_from(&self.initial_weights);
+        self.belief.reset();
+        // The initial plan's weights, which the reset belief gives again.
+        if let Ok(w) = planning_weights(&self.params.risk, &self.update, &self.belief, &self.weights, &mut self.std) {
+            self.plan_weights = w;
+        }
         self.plan.clone_from(&self.initial_plan);
         self.next_sample = 0.0;
         self.last_t = None;
@@ -464,6 +510,9 @@ impl Learner {
         self.next_sample = position.floor() + 1.0;
         obs.sampled = true;
         obs.interacted = self.detector.detect(tau_measured, &mut self.u_h)?;
+        for ((p, tau), b) in self.push.iter_mut().zip(tau_measured).zip(self.detector.bias()) {
+            *p = tau - b;
+        }
         if !obs.interacted {
             self.continue_budgeted(t, &mut obs)?;
             self.last_observation = obs;
@@ -477,6 +526,8 @@ impl Learner {
             moved: 0,
             update: None,
             replan: None,
+            rationality: None,
+            covariance: Vec::new(),
         };
         if self.params.learning {
             if self.learn(t, &mut record)? {
@@ -556,7 +607,8 @@ impl Learner {
         if record.moved == 0 {
             return Ok(false);
         }
-        self.features.phi(&self.tracked_plan, &mut self.phi_r)?;
+        // Φ(ξ_R) with its gradient, for the push's sensitivity (the belief, β̂, the relevance).
+        self.features.phi_gradient(&self.tracked_plan, &mut self.phi_r, &mut self.jacobian)?;
         self.features.phi(&self.deformed, &mut self.phi_h)?;
         for k in 0..self.delta_phi.len() {
             self.delta_phi[k] = self.phi_h[k] - self.phi_r[k];
@@ -567,17 +619,44 @@ impl Learner {
                 "is so large that the deformed trajectory's features overflow (non-finite)",
             ));
         }
-        let relevance = if self.update.params().rule == UpdateRule::Confidence {
-            self.compute_relevance(index)?;
-            Some(&self.relevance[..])
-        } else {
-            None
+        self.compute_sensitivity(index)?;
+        // β̂ looks at the whole push: the detector's thresholds zero the joints it barely loads,
+        // which would hide how well the features explain it.
+        let rationality = rationality(&self.sensitivity, &self.update.params().learned, &self.push)?;
+        let relevance = match self.update.params().rule {
+            UpdateRule::Confidence => {
+                relevance(&self.delta_phi, &self.sensitivity, &self.u_h, &mut self.relevance)?;
+                Some(&self.relevance[..])
+            }
+            UpdateRule::Beta => {
+                self.relevance.fill(rationality.step_scale());
+                Some(&self.relevance[..])
+            }
+            _ => None,
         };
         let info = self.update.apply(&mut self.weights, &self.delta_phi, relevance)?;
+        self.belief.observe(&self.sensitivity, n)?;
+        self.refresh_plan_weights()?;
         record.delta_phi = self.delta_phi.clone();
         record.weights = self.weights.clone();
         record.update = Some(info);
+        record.rationality = Some(rationality);
+        record.covariance = self.belief.covariance().to_vec();
         Ok(true)
+    }
+
+    /// `plan_weights` from the estimate and the belief.
+    fn refresh_plan_weights(&mut self) -> Result<()> {
+        if self.params.risk.is_empty() {
+            self.plan_weights.copy_from_slice(&self.weights);
+            return Ok(());
+        }
+        self.belief.std(&mut self.std)?;
+        for (i, w) in self.plan_weights.iter_mut().enumerate() {
+            *w = self.weights[i] + self.params.risk[i] * self.std[i];
+        }
+        self.update.clip(&mut self.plan_weights);
+        Ok(())
     }
 
     /// Inline: replans over [0, T] from the original start, warm-started from the current plan
@@ -589,7 +668,7 @@ impl Learner {
         let Replanner::Inline(planner) = &mut self.replanner else {
             return Err(PhriError::invalid("replan_latency", "replans on its worker, not inline"));
         };
-        let info = match planner.solve(&self.weights) {
+        let info = match planner.solve(&self.plan_weights) {
             Ok(info) => info,
             Err(e) => {
                 // The arm keeps its plan; later replans start again from it.
@@ -630,7 +709,7 @@ impl Learner {
     fn request(&mut self, t: f64) {
         let Replanner::Worker(worker) = &mut self.replanner else { return };
         let block = self.params.replan_latency != ReplanLatency::WallClock;
-        let generation = worker.request(&self.weights, self.tracked, block);
+        let generation = worker.request(&self.plan_weights, self.tracked, block);
         if self.pending.is_some() {
             self.superseded += 1;
         }
@@ -686,13 +765,13 @@ impl Learner {
         Ok(())
     }
 
-    /// Linearised sensitivity S = ∂ΔΦ/∂u_H (K × n) at the current plan, then relevance.
-    fn compute_relevance(&mut self, index: usize) -> Result<()> {
+    /// Linearised sensitivity S = ∂ΔΦ/∂u_H (K × n) of a push at waypoint `index`, from the
+    /// gradient of Φ at the tracked plan (in `jacobian`).
+    fn compute_sensitivity(&mut self, index: usize) -> Result<()> {
         let (n, m, k_len) = (self.plan.dof(), self.plan.len(), self.features.len());
         // Unit torque on every joint moves joint j of waypoint i by shape[i][j] = μ·H_i.
         self.shape.fill(0.0);
         self.deformation.deform_in_place(&mut self.shape, n, index, &self.ones)?;
-        self.features.phi_gradient(&self.tracked_plan, &mut self.phi_r, &mut self.jacobian)?;
         self.sensitivity.fill(0.0);
         for k in 0..k_len {
             for i in 0..m {
@@ -701,8 +780,21 @@ impl Learner {
                 }
             }
         }
-        relevance(&self.delta_phi, &self.sensitivity, &self.u_h, &mut self.relevance)
+        Ok(())
     }
+}
+
+/// The weights to plan with: `weights`, or with a `risk` vector w + k ⊙ σ clipped to the bounds.
+fn planning_weights(risk: &[f64], update: &WeightUpdate, belief: &Belief, weights: &[f64], std: &mut [f64]) -> Result<Vec<f64>> {
+    let mut plan = weights.to_vec();
+    if !risk.is_empty() {
+        belief.std(std)?;
+        for (i, w) in plan.iter_mut().enumerate() {
+            *w += risk[i] * std[i];
+        }
+        update.clip(&mut plan);
+    }
+    Ok(plan)
 }
 
 /// Checks the timing and mode settings.

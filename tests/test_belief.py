@@ -23,7 +23,7 @@ PUSHES = tuple(
 )
 #: λ [1/(N·m)²]: pushes spread by about 1.6 N·m per joint under the model. The belief linearises the
 #: features along the push; with a spread of 3 N·m (λ = 0.05) the tilt's curvature along it puts
-#: the numerical posterior's variance 15 % above the belief's (docs/belief.md).
+#: the numerical posterior's variance 15 % above the belief's (docs/concepts.md).
 EFFORT = 0.2
 
 
@@ -195,3 +195,21 @@ def test_risk_aware_planning_weights(two_weights):
             planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
             task.vector("initial"), task.start, task.goal, effort=0.0,
         )  # fmt: skip
+
+
+def test_an_episode_plans_with_risk_and_logs_the_belief():
+    from phri.sim.episode import EpisodeConfig, make_learner
+    from phri.study import StudyConfig
+
+    task = load_task("table")
+    planner = Planner(task, phri.Robot.jaco2())
+    config = EpisodeConfig(risk=0.5)
+    learner = make_learner(task, planner, config, [8.0, 8, 8, 2, 1, 1, 1], replan_latency=0.0)
+    mean, covariance = learner.belief()
+    table = task.feature_names.index("table")
+    assert learner.plan_weights[table] == pytest.approx(mean[table] + 0.5 * np.sqrt(covariance[table, table]))
+    assert learner.plan_weights[0] == mean[0], "efficiency is not learned: planned at its weight"
+    assert StudyConfig(risk=0.5).episode_config("learning").risk == 0.5
+    for bad in (float("nan"), True, "1"):
+        with pytest.raises(InvalidParameterError, match="risk"):
+            EpisodeConfig(risk=bad)

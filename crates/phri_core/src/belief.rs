@@ -33,7 +33,11 @@
 //!
 //! is about 1 for a push the features explain no better than a push in a random direction would
 //! be, and grows with how well they explain it (an F statistic: it does not depend on the push's
-//! size or on λ). A correction with β̂ below [`BETA_THRESHOLD`] is "unexplained"; the `"beta"`
+//! size or on λ). The learner takes u_H here as the whole sampled torque less the detector's bias:
+//! the detector's thresholds zero the joints a push barely loads, which would hide its direction.
+//!
+//! The linearisation ignores the features' curvature along the push: where a feature curves
+//! strongly over the pushes' spread 1/√(2λ), Σ is too narrow along it. A correction with β̂ below [`BETA_THRESHOLD`] is "unexplained"; the `"beta"`
 //! update rule scales its step by min(1, β̂ / [`BETA_FULL`]).
 
 use nalgebra::{DMatrix, DVector};

@@ -119,6 +119,10 @@ class EpisodeConfig:
     #: Update rule: "all" (the paper), "max", "confidence" or "beta" (steps scaled by how well the
     #: learned features explain each push; :mod:`phri.belief`).
     rule: str = "all"
+    #: Risk-aware planning: the learner plans with each learned weight raised by this many of the
+    #: belief's standard deviations (w + k·σ, clipped to the bounds; :class:`phri.Learner`'s
+    #: ``risk``); 0 plans with the estimate, as the paper.
+    risk: float = 0.0
     #: The simulated person corrects one feature at a time, the most visible first, until it looks
     #: fixed (:class:`~phri.sim.participant.Participant`'s ``one_at_a_time``; HRI 2018). The learner
     #: that matches them is ``rule="max"``, which moves only the weight whose feature changed most.
@@ -176,6 +180,8 @@ class EpisodeConfig:
             raise fail("simulator", f"one of {SIMULATORS}", self.simulator, repr)
         if self.rule not in RULES:
             raise fail("rule", f"one of {RULES}", self.rule, repr)
+        if isinstance(self.risk, bool) or not (isinstance(self.risk, int | float) and math.isfinite(self.risk)):
+            raise fail("risk", "a finite number of standard deviations", self.risk, repr)
         if not isinstance(self.one_at_a_time, bool):
             raise fail("one_at_a_time", "True or False", self.one_at_a_time, repr)
         if not 0 <= self.transition_speed <= 1:
@@ -400,6 +406,7 @@ def make_learner(
         duration=task.duration, sample_period=1.0 / config.sample_rate,
         learning=config.strategy == "learning", transition_speed=config.transition_speed,
         replan_latency=replan_latency, seeds=seeds, worker_spin=worker_spin,
+        risk=[config.risk if f.learned else 0.0 for f in task.features] if config.risk else None,
     )  # fmt: skip
 
 

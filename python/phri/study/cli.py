@@ -32,7 +32,7 @@ logger = logging.getLogger(__name__)
 
 _STUDY_KEYS = (
     "participants", "attempts", "seed", "tasks", "familiarization", "duration", "waypoints", "knots",
-    "sample_rate", "sensor_noise", "rule", "population",
+    "sample_rate", "sensor_noise", "rule", "risk", "population",
 )  # fmt: skip
 
 
@@ -87,6 +87,12 @@ def _add_study(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[
     g.add_argument("--sample-rate", type=float, help="torque sampling rate [Hz] (default 10)")
     g.add_argument("--sensor-noise", type=float, help="torque sensor noise [N·m] (default 0.1)")
     g.add_argument("--rule", choices=UPDATE_RULES, help="weight-update rule (default all)")
+    g.add_argument(
+        "--risk",
+        type=float,
+        help="plan with each learned weight this many of the belief's standard deviations above its "
+        "estimate (default 0: the estimate, as the paper)",
+    )
     g.add_argument(
         "--population",
         help="the simulated participants: a population TOML file (parameter distributions, see "

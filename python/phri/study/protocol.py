@@ -89,8 +89,11 @@ class StudyConfig:
     sample_rate: float = 10.0
     #: Gaussian noise on the joint-torque measurement [N·m] (EpisodeConfig.sensor_noise).
     sensor_noise: float = 0.1
-    #: Weight-update rule: "all" (the paper), "max" or "confidence" (EpisodeConfig.rule).
+    #: Weight-update rule: "all" (the paper), "max", "confidence" or "beta" (EpisodeConfig.rule).
     rule: str = "all"
+    #: Risk-aware planning: each learned weight planned k belief standard deviations above its
+    #: estimate (EpisodeConfig.risk); 0 plans with the estimate, as the paper.
+    risk: float = 0.0
     #: Who the simulated participants are: their parameters' distributions (a population file's
     #: contents; the study keeps them, so a resumed study draws the same people).
     population: Population = field(default_factory=default_population)
@@ -150,7 +153,7 @@ class StudyConfig:
             raise fail("waypoints", "an integer >= 3 or none", self.waypoints)
         if self.knots is not None and (not integer(self.knots) or self.knots in (1, 2) or self.knots < 0):
             raise fail("knots", "0 (plan every waypoint), an integer >= 3 or none", self.knots)
-        for key in ("sample_rate", "sensor_noise"):
+        for key in ("sample_rate", "sensor_noise", "risk"):
             v = getattr(self, key)
             if not finite(v):
                 raise fail(key, "a finite number", v)
@@ -161,7 +164,7 @@ class StudyConfig:
         try:
             EpisodeConfig(
                 sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule,
-                simulator=self.simulator,
+                risk=self.risk, simulator=self.simulator,
             )  # fmt: skip
         except ValueError as e:
             raise StudyConfigError(f"study: {e}") from None
@@ -171,10 +174,10 @@ class StudyConfig:
     # -- the study's parts ------------------------------------------------------------------------
 
     def episode_config(self, strategy: str) -> EpisodeConfig:
-        """How the study runs an episode of `strategy` (its sample rate, sensor noise and rule)."""
+        """How the study runs an episode of `strategy` (its sample rate, sensor noise, rule and risk)."""
         return EpisodeConfig(
             strategy=strategy, sample_rate=self.sample_rate, sensor_noise=self.sensor_noise, rule=self.rule,
-            simulator=self.simulator,
+            risk=self.risk, simulator=self.simulator,
         )  # fmt: skip
 
     def load_tasks(self) -> dict[str, Task]:

@@ -92,6 +92,9 @@ bench-features: $(BUILT)  ## Time cold plans with a feature declared or written 
 bench-episode: $(BUILT)  ## Time simulated 15 s episodes against real time
 	$(PY) benches/episode.py
 
+bench-misspecified: $(BUILT)  ## The paper's update rule against "beta", on the study and with pushes no feature explains
+	$(PY) benches/misspecified.py
+
 bench-variations: $(BUILT)  ## The simulated person on 30 random variations of each task (a fresh seed; SEED=... to rerun)
 	$(PY) benches/variations.py $(if $(SEED),--seed $(SEED))
 

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 import phri
-from phri import load_task
-from phri import Deformation, InteractionDetector, Learner, WeightUpdate
+from phri import Deformation, InteractionDetector, Learner, WeightUpdate, load_task
 from phri.exceptions import InvalidParameterError, NonFiniteError, ShapeError
 from phri.sim.episode import Planner
 from phri.tasks import vary
@@ -18,7 +17,10 @@ from phri.tasks import vary
 #: Pushes of the small problem: sample times [s] and joint torques [N·m] (every joint above the
 #: detector's thresholds, so u_H is the push itself).
 PUSHES = tuple(
-    (1.0 + 1.5 * i, np.array([1.0, -6.0, 2.0, -4.0, 1.5, -1.0, 1.0]) * np.random.default_rng(i).uniform(0.5, 1.5, 7))
+    (
+        1.0 + 1.5 * i,
+        np.array([1.0, -6.0, 2.0, -4.0, 1.5, -1.0, 1.0]) * np.random.default_rng(i).uniform(0.5, 1.5, 7),
+    )
     for i in range(8)
 )
 #: λ [1/(N·m)²]: pushes spread by about 1.6 N·m per joint under the model. The belief linearises the
@@ -31,11 +33,16 @@ EFFORT = 0.2
 def two_weights():
     """The table task with the cup's tilt learned too: a learner that records the plan it tracked
     at each push (it switches plans at once, so the plan is what it tracks)."""
-    task = vary(load_task("table"), np.random.default_rng(0), move=0.0, table_height=0.0, pose=0.0, second=True)
+    task = vary(
+        load_task("table"), np.random.default_rng(0), move=0.0, table_height=0.0, pose=0.0, second=True
+    )
     robot = phri.Robot.jaco2()
     planner = Planner(task, robot)
     update = WeightUpdate(
-        task.vector("step"), task.vector("lower"), task.vector("upper"), learned=[f.learned for f in task.features]
+        task.vector("step"),
+        task.vector("lower"),
+        task.vector("upper"),
+        learned=[f.learned for f in task.features],
     )
     deformation = Deformation()
     learner = Learner(
@@ -101,7 +108,10 @@ def test_covariance_shrinks_along_corrected_features_only():
     task = dataclasses.replace(task, features=(*task.features, dataclasses.replace(spec, initial=0.0)))
     planner = Planner(task, robot)
     update = WeightUpdate(
-        task.vector("step"), task.vector("lower"), task.vector("upper"), learned=[f.learned for f in task.features]
+        task.vector("step"),
+        task.vector("lower"),
+        task.vector("upper"),
+        learned=[f.learned for f in task.features],
     )
     learner = Learner(
         planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
@@ -149,7 +159,9 @@ def test_beta_rule_scales_the_step_by_rationality(two_weights):
     learned = [f.learned for f in task.features]
 
     def first_push(rule: str):  # -> the learner's history
-        update = WeightUpdate(task.vector("step"), task.vector("lower"), task.vector("upper"), learned=learned, rule=rule)
+        update = WeightUpdate(
+            task.vector("step"), task.vector("lower"), task.vector("upper"), learned=learned, rule=rule
+        )
         learner = Learner(
             planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
             task.vector("initial"), task.start, task.goal, duration=task.duration,
@@ -162,7 +174,9 @@ def test_beta_rule_scales_the_step_by_rationality(two_weights):
     scale = min(1.0, beta.beta[0] / phri.BETA_FULL)
     assert 0 < scale < 1, "the push is partly explained: the step is scaled"
     step, initial = task.vector("step"), task.vector("initial")
-    want = np.clip(initial - scale * step * paper.delta_phi[0] * learned, task.vector("lower"), task.vector("upper"))
+    want = np.clip(
+        initial - scale * step * paper.delta_phi[0] * learned, task.vector("lower"), task.vector("upper")
+    )
     np.testing.assert_allclose(beta.weights[0], want, rtol=1e-12, atol=1e-15)
     assert np.any(beta.weights[0] != paper.weights[0])
 
@@ -170,7 +184,9 @@ def test_beta_rule_scales_the_step_by_rationality(two_weights):
 def test_risk_aware_planning_weights(two_weights):
     task, planner, _, _, _ = two_weights
     learned = np.array([f.learned for f in task.features])
-    update = WeightUpdate(task.vector("step"), task.vector("lower"), task.vector("upper"), learned=list(learned))
+    update = WeightUpdate(
+        task.vector("step"), task.vector("lower"), task.vector("upper"), learned=list(learned)
+    )
     risk = np.where(learned, 0.1, 0.0)
     learner = Learner(
         planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,

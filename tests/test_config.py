@@ -137,7 +137,8 @@ def _shipped_text(name: str) -> str:
             "duration = 15.0",
             "duraton = 15.0",
             "unknown key 'duraton' in the top-level table; allowed keys: name, title, angles, start, goal, "
-            "duration, waypoints, knots, task_feature, feature_frame, features, scene, robot, safety; "
+            "duration, waypoints, knots, task_feature, feature_frame, features, unmodelled, scene, robot, "
+            "safety; "
             "did you mean 'duration'?",
         ),
         (

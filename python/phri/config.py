@@ -15,7 +15,7 @@ import functools
 import math
 import os
 import stat
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -46,7 +46,7 @@ MAX_NAME_LENGTH = 64
 NAME_PUNCTUATION = ("_", "-", ".")
 TASK_KEYS = (
     "name", "title", "angles", "start", "goal", "duration", "waypoints", "knots", "task_feature",
-    "feature_frame", "features", "scene", "robot", "safety",
+    "feature_frame", "features", "unmodelled", "scene", "robot", "safety",
 )  # fmt: skip
 #: Keys of a task's [safety] table: the tool's box and overrides of the robot's joint limits.
 TASK_SAFETY_KEYS = ("tool_box", *SAFETY_KEYS)
@@ -127,6 +127,18 @@ class Task:
     #: knots evenly spaced in time, each on a waypoint, as the original planned 4 and upsampled them
     #: to 31); 0 plans every waypoint.
     knots: int = 0
+    #: Features the simulated person cares about and the robot does not model (``[unmodelled.<name>]``
+    #: tables, each with its ``true`` weight): the person's desired behaviour is planned with them
+    #: too, and they correct for them; the robot's features, learner and planner never see them
+    #: (misspecified features, Bobu et al., T-RO 2020). ``initial`` is 0 and ``learned`` true.
+    unmodelled: tuple[FeatureSpec, ...] = ()
+
+    def seen_by_person(self) -> Task:
+        """The task as the simulated person sees it: its features followed by the unmodelled ones
+        (the task itself when there are none)."""
+        if not self.unmodelled:
+            return self
+        return replace(self, features=(*self.features, *self.unmodelled), unmodelled=())
 
     @property
     def feature_names(self) -> list[str]:
@@ -292,25 +304,27 @@ def _safety(r: Reader) -> TaskSafety:
     return TaskSafety(tool_box, read_safety(s))
 
 
-def _feature(r: Reader, name: str, table: Any, scene: Scene, scale: float) -> FeatureSpec:
+def _feature(
+    r: Reader, name: str, table: Any, scene: Scene, scale: float, section: str = "features"
+) -> FeatureSpec:
     """One [features.<name>] table: the weights and the feature's own parameters; a table with
     ``kind`` declares a feature of that kind, one with ``source`` names a Python feature."""
     if not isinstance(table, dict):
-        raise r.fail(f"features.{name}", "a table", table)
+        raise r.fail(f"{section}.{name}", "a table", table)
     if "kind" in table and "source" in table:
-        raise ConfigError(f"{r.source}: key 'features.{name}': give either kind or source, not both")
+        raise ConfigError(f"{r.source}: key '{section}.{name}': give either kind or source, not both")
     if "kind" in table:
-        return _declared(r, name, table, scene, scale)
+        return _declared(r, name, table, scene, scale, section)
     if "source" in table:
-        return _python_feature(r, name, table)
+        return _python_feature(r, name, table, section)
     if name not in FEATURE_NAMES:
         raise ConfigError(
-            f"{r.source}: key 'features.{name}': unknown feature; known: {', '.join(FEATURE_NAMES)}"
+            f"{r.source}: key '{section}.{name}': unknown feature; known: {', '.join(FEATURE_NAMES)}"
             f"{did_you_mean(name, FEATURE_NAMES)} (or declare one with kind = ..., or name Python code with "
             'source = "module:Name")'
         )
     parameters = FEATURE_PARAMETERS[name]
-    f = Reader(r.source, table, f"features.{name}.", WEIGHT_KEYS + parameters)
+    f = Reader(r.source, table, f"{section}.{name}.", WEIGHT_KEYS + parameters)
     if "keep_out" in parameters:
         f.get("radius")  # a keep-out feature needs both: a missing one is named here
         _object(f, "keep_out", scene)
@@ -368,18 +382,20 @@ _DECLARED_READERS: dict[str, Any] = {
 }
 
 
-def _declared(r: Reader, name: str, table: dict[str, Any], scene: Scene, scale: float) -> FeatureSpec:
+def _declared(
+    r: Reader, name: str, table: dict[str, Any], scene: Scene, scale: float, section: str = "features"
+) -> FeatureSpec:
     """A [features.<name>] table with ``kind``: a declared feature (the kinds: DECLARED_PARAMETERS;
     ``pose`` in the task's angle unit)."""
     kind = table["kind"]
     if kind not in DECLARED_PARAMETERS:
         known = tuple(DECLARED_PARAMETERS)
         raise ConfigError(
-            f"{r.source}: key 'features.{name}.kind': unknown kind {kind!r}; known: {', '.join(known)}"
+            f"{r.source}: key '{section}.{name}.kind': unknown kind {kind!r}; known: {', '.join(known)}"
             f"{did_you_mean(str(kind), known)}"
         )
     parameters = DECLARED_PARAMETERS[kind]
-    f = Reader(r.source, table, f"features.{name}.", (*WEIGHT_KEYS, "kind", *parameters))
+    f = Reader(r.source, table, f"{section}.{name}.", (*WEIGHT_KEYS, "kind", *parameters))
     required = {"distance": ("object", "radius"), "alignment": ("direction",), "joint_distance": ("pose",)}
     for key in required.get(kind, ()):
         f.get(key)
@@ -389,10 +405,10 @@ def _declared(r: Reader, name: str, table: dict[str, Any], scene: Scene, scale: 
     return FeatureSpec(name, *_weights(f, name, table), params)
 
 
-def _python_feature(r: Reader, name: str, table: dict[str, Any]) -> FeatureSpec:
+def _python_feature(r: Reader, name: str, table: dict[str, Any], section: str = "features") -> FeatureSpec:
     """A [features.<name>] table with ``source = "module:Name"``: Python code beside the task file
     (``args``: keywords for it)."""
-    f = Reader(r.source, table, f"features.{name}.", (*WEIGHT_KEYS, "source", "args"))
+    f = Reader(r.source, table, f"{section}.{name}.", (*WEIGHT_KEYS, "source", "args"))
     source = f.string("source")
     path = Path(r.source)
     if not path.is_file():
@@ -404,7 +420,7 @@ def _python_feature(r: Reader, name: str, table: dict[str, Any]) -> FeatureSpec:
     try:
         source_file(source, folder)
     except ConfigError as e:
-        raise ConfigError(f"{r.source}: key 'features.{name}.source': {e}") from None
+        raise ConfigError(f"{r.source}: key '{section}.{name}.source': {e}") from None
     return FeatureSpec(
         name, *_weights(f, name, table), {"source": source, "folder": str(folder), "args": args}
     )
@@ -428,6 +444,7 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     if not isinstance(feats, dict) or not feats:
         raise r.fail("features", "a table of feature tables, e.g. [features.table]", feats)
     specs = tuple(_feature(r, name, table, scene, scale) for name, table in feats.items())
+    unmodelled = _unmodelled(r, specs, scene, scale)
     task_feature = r.string("task_feature")
     if task_feature not in feats:
         raise r.fail("task_feature", f"one of the task's features {list(feats)}", task_feature)
@@ -451,6 +468,7 @@ def _parse(data: dict[str, Any], source: str) -> Task:
         knots=int(knots),
         task_feature=task_feature,
         features=specs,
+        unmodelled=unmodelled,
         scene=scene,
         source=source,
         feature_frame=feature_frame,
@@ -458,9 +476,41 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     )
     try:  # the core's remaining checks (e.g. at most MAX_SAMPLES samples), named by the file
         task.feature_set(robot)
+        task.seen_by_person().feature_set(robot)
     except PhriError as e:
         raise ConfigError(f"{source}: {e}") from None
     return task
+
+
+def _unmodelled(
+    r: Reader, specs: tuple[FeatureSpec, ...], scene: Scene, scale: float
+) -> tuple[FeatureSpec, ...]:
+    """The [unmodelled.<name>] tables: features as in [features], each with only its ``true``
+    weight (the person's), none named like a modelled feature."""
+    tables = r.get("unmodelled", {})
+    if not isinstance(tables, dict):
+        raise r.fail("unmodelled", "a table of feature tables, e.g. [unmodelled.laptop]", tables)
+    names = {f.name for f in specs}
+    out = []
+    for name, table in tables.items():
+        if name in names:
+            raise ConfigError(
+                f"{r.source}: key 'unmodelled.{name}': the robot models a feature of that name; an "
+                "unmodelled feature needs a name of its own (declare one with kind = ...)"
+            )
+        if not isinstance(table, dict):
+            raise r.fail(f"unmodelled.{name}", "a table", table)
+        extra = sorted(set(table) & (set(WEIGHT_KEYS) - {"true"}))
+        if extra:
+            raise ConfigError(
+                f"{r.source}: key 'unmodelled.{name}': only 'true' of the weights applies (the robot never "
+                f"learns it), got {extra}"
+            )
+        spec = _feature(r, name, {**table, "initial": 0.0}, scene, scale, "unmodelled")
+        if spec.true == 0.0:
+            raise r.fail(f"unmodelled.{name}.true", "a weight other than 0 (the person must care)", spec.true)
+        out.append(spec)
+    return tuple(out)
 
 
 def _read_text(source: str, file: Any) -> str:

@@ -63,6 +63,9 @@ pub struct PyLearner {
     may_wait: bool,
 }
 
+/// `Learner.belief()`: the mean (K,) and the covariance (K, K).
+type Belief<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
+
 // The signature spells the default out so that Python's introspection shows it.
 const _: () = assert!(DEFAULT_TRANSITION_SPEED == 0.8);
 const _: () = assert!(DEFAULT_EFFORT == 0.02);
@@ -267,7 +270,7 @@ impl PyLearner {
     /// the paper's observation model (eq. 8-11) with its normaliser kept to second order: the prior
     /// diag(step) on the learned weights, shrunk by S Sᵀ/(2·effort) at every push with S = ∂ΔΦ/∂u_H.
     /// Weights that are not learned have no variance.
-    fn belief<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
+    fn belief<'py>(&self, py: Python<'py>) -> PyResult<Belief<'py>> {
         let learner = self.learner(py);
         let (mean, covariance) = learner.belief();
         let k = mean.len();

@@ -180,7 +180,9 @@ class EpisodeConfig:
             raise fail("simulator", f"one of {SIMULATORS}", self.simulator, repr)
         if self.rule not in RULES:
             raise fail("rule", f"one of {RULES}", self.rule, repr)
-        if isinstance(self.risk, bool) or not (isinstance(self.risk, int | float) and math.isfinite(self.risk)):
+        if isinstance(self.risk, bool) or not (
+            isinstance(self.risk, int | float) and math.isfinite(self.risk)
+        ):
             raise fail("risk", "a finite number of standard deviations", self.risk, repr)
         if not isinstance(self.one_at_a_time, bool):
             raise fail("one_at_a_time", "True or False", self.one_at_a_time, repr)
@@ -312,16 +314,24 @@ class Planner:
             speed_fraction=VELOCITY_MARGIN,
             knots=task.knots,
         )
-        self.desired, info = self.optimizer.solve(task.vector("true"), task.start, task.goal)
-        self.check(info, "true")
+        # The person's desired behaviour: the true weights, and the features the robot does not
+        # model (Task.unmodelled) at theirs.
+        seen = task.seen_by_person()
+        person = self.optimizer if seen is task else TrajectoryOptimizer(
+            seen.feature_set(model), task.waypoints, duration=task.duration, speed_fraction=VELOCITY_MARGIN,
+            knots=task.knots,
+        )  # fmt: skip
+        self.desired, info = person.solve(seen.vector("true"), task.start, task.goal)
+        self.check(info, "true", person)
         self.desired_cost = float(self.features.phi(self.desired)[task.task_index])
 
-    def check(self, info: TrajoptInfo, weights: str) -> None:
+    def check(self, info: TrajoptInfo, weights: str, optimizer: TrajectoryOptimizer | None = None) -> None:
         """Raises PlanningError, naming the task file, the cause and the violated pair, unless the
-        plan just made (for the task's `weights` weights) is feasible and converged."""
+        plan just made (for the task's `weights` weights, by `optimizer`, default the robot's) is
+        feasible and converged."""
         task = self.task
         if info.max_violation > TrajectoryOptimizer.CLEARANCE_TOLERANCE:
-            pair = self.optimizer.closest_pair
+            pair = (optimizer or self.optimizer).closest_pair
             what = (
                 f"'{pair[0]}' comes within {pair[2]:.3f} m of '{pair[1]}' (margin {pair[3]:.3f} m)"
                 if pair is not None

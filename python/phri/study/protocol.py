@@ -244,7 +244,7 @@ class StudyConfig:
             if _is_path(spec):
                 files[f"{task.name}.toml"] = Path(task.source)
                 # The Python features it names, at the same place relative to the copy.
-                for code in filter(None, (f.code() for f in task.features)):
+                for code in filter(None, (f.code() for f in (*task.features, *task.unmodelled))):
                     files[code[1]] = code[0]
         return files
 
@@ -328,8 +328,11 @@ class StudyConfig:
             }
             if not task.knots:  # a task that plans every waypoint has the digest it had before knots
                 del d["knots"]
+            if not task.unmodelled:  # likewise without unmodelled features
+                del d["unmodelled"]
             d["scene"] = [_scene_object_record(o) for o in task.scene.objects]
-            for feature, record in zip(task.features, d["features"], strict=True):
+            specs = (*task.features, *task.unmodelled)
+            for feature, record in zip(specs, [*d["features"], *d.get("unmodelled", [])], strict=True):
                 code = feature.code()
                 if code is not None:
                     # What the code says, not where it is (a study reads its folder's copy).

@@ -7,7 +7,8 @@ over the table, how far it is inside the laptop's or the person's circle — not
 the same clock time:
 
 - They care about the features whose weight the robot has wrong: learned features whose true weight
-  differs from the initial one. A higher true cost weight means they want that feature lower.
+  differs from the initial one, and the task's unmodelled features (``Task.unmodelled``), which the
+  robot does not have at all. A higher true cost weight means they want that feature lower.
 - The feature's value now, φ_k(q) (the task's own feature, one configuration), is compared with the
   desired behaviour's value at the same place along the way: the desired path's point nearest the
   cup in the horizontal plane, never going back (the person follows the demonstration's progress, not
@@ -82,6 +83,7 @@ class TaskView:
             raise InvalidParameterError(f"window must be a time > 0 s, got {window!r}")
         #: How far from the clock the compared point of the demonstration may be [s].
         self.window = window
+        task = task.seen_by_person()  # the features the robot does not model matter to them too
         self.features = task.feature_set(robot)
         self.robot, self.frame = robot, self.features.frame
         initial, true = task.vector("initial"), task.vector("true")

@@ -284,7 +284,8 @@ impl Learner {
             check_finite("risk", &params.risk)?;
         }
         let mut std = vec![0.0; k];
-        let plan_weights = planning_weights(&params.risk, &update, &belief, &weights, &mut std)?;
+        let mut plan_weights = vec![0.0; k];
+        planning_weights(&params.risk, &update, &belief, &weights, &mut std, &mut plan_weights)?;
         let m = optimizer.waypoints();
         let full_cap = optimizer.params().max_iterations;
         let mut levels = optimizer.plan_levels();
@@ -437,10 +438,9 @@ impl Learner {
         }
         self.weights.clone_from(&self.initial_weights);
         self.belief.reset();
-        // The initial plan's weights, which the reset belief gives again.
-        if let Ok(w) = planning_weights(&self.params.risk, &self.update, &self.belief, &self.weights, &mut self.std) {
-            self.plan_weights = w;
-        }
+        // The initial plan's weights, which the reset belief gives again (the slices were sized
+        // at construction, so this cannot fail).
+        let _ = self.refresh_plan_weights();
         self.plan.clone_from(&self.initial_plan);
         self.next_sample = 0.0;
         self.last_t = None;
@@ -647,16 +647,7 @@ impl Learner {
 
     /// `plan_weights` from the estimate and the belief.
     fn refresh_plan_weights(&mut self) -> Result<()> {
-        if self.params.risk.is_empty() {
-            self.plan_weights.copy_from_slice(&self.weights);
-            return Ok(());
-        }
-        self.belief.std(&mut self.std)?;
-        for (i, w) in self.plan_weights.iter_mut().enumerate() {
-            *w = self.weights[i] + self.params.risk[i] * self.std[i];
-        }
-        self.update.clip(&mut self.plan_weights);
-        Ok(())
+        planning_weights(&self.params.risk, &self.update, &self.belief, &self.weights, &mut self.std, &mut self.plan_weights)
     }
 
     /// Inline: replans over [0, T] from the original start, warm-started from the current plan
@@ -785,16 +776,24 @@ impl Learner {
 }
 
 /// The weights to plan with: `weights`, or with a `risk` vector w + k ⊙ σ clipped to the bounds.
-fn planning_weights(risk: &[f64], update: &WeightUpdate, belief: &Belief, weights: &[f64], std: &mut [f64]) -> Result<Vec<f64>> {
-    let mut plan = weights.to_vec();
+/// `std` is scratch (K,); `plan` (K,) receives the weights.
+fn planning_weights(
+    risk: &[f64],
+    update: &WeightUpdate,
+    belief: &Belief,
+    weights: &[f64],
+    std: &mut [f64],
+    plan: &mut [f64],
+) -> Result<()> {
+    plan.copy_from_slice(weights);
     if !risk.is_empty() {
         belief.std(std)?;
         for (i, w) in plan.iter_mut().enumerate() {
             *w += risk[i] * std[i];
         }
-        update.clip(&mut plan);
+        update.clip(plan);
     }
-    Ok(plan)
+    Ok(())
 }
 
 /// Checks the timing and mode settings.

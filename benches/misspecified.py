@@ -12,11 +12,11 @@ feature names") come from here.
    robot does not model (a task file's [unmodelled.laptop]). The default population's first
    --people people × --seeds episode seeds, learning, under each rule. Printed: the mean and largest
    move of the height's weight as a fraction of its range, the episodes in which it moved more
-   than half (all) or more than a tenth (beta) of its range, and the share of pushes with β̂ below
+   than half and more than a tenth of its range, and the share of pushes with β̂ below
    phri.BETA_THRESHOLD.
 
 Usage: python benches/misspecified.py [--people 10] [--seeds 2] [--skip-study]
-       (about two minutes on the project's 2-core machine)
+       (about 40 s on the project's 2-core machine)
 """
 
 from __future__ import annotations

@@ -32,7 +32,8 @@ def table_with(tmp_path, extra: str, *, table_true: float = 0.0):
         "[features.table]\ninitial = 0.0\ntrue = 1.0", f"[features.table]\ninitial = 0.0\ntrue = {table_true}"
     )
     path = tmp_path / "table_laptop.toml"
-    path.write_text(text + extra, encoding="utf-8")
+    # "TOP ..." goes before the first table, as a top-level key.
+    path.write_text(extra[4:] + text if extra.startswith("TOP ") else text + extra, encoding="utf-8")
     return load_task(path)
 
 
@@ -61,7 +62,7 @@ def test_the_robot_does_not_see_unmodelled_features(tmp_path):
         (LAPTOP.replace("true = 10.0", "true = 10.0\nstep = 1.0"), "only 'true'"),
         (LAPTOP.replace("true = 10.0", "true = 0.0"), "unmodelled.laptop.true"),
         (LAPTOP.replace('keep_out = "laptop"', 'keep_out = "vase"'), "unmodelled.laptop"),
-        ("unmodelled = 3\n", "unmodelled"),
+        ("TOP unmodelled = 3\n", "key 'unmodelled' must be a table of feature tables"),
     ],
 )
 def test_bad_unmodelled_tables_are_named(tmp_path, extra, message):

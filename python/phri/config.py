@@ -476,7 +476,8 @@ def _parse(data: dict[str, Any], source: str) -> Task:
     )
     try:  # the core's remaining checks (e.g. at most MAX_SAMPLES samples), named by the file
         task.feature_set(robot)
-        task.seen_by_person().feature_set(robot)
+        if task.unmodelled:
+            task.seen_by_person().feature_set(robot)
     except PhriError as e:
         raise ConfigError(f"{source}: {e}") from None
     return task

@@ -95,20 +95,26 @@ pub fn rationality(sensitivity: &[f64], learned: &[bool], u_h: &[f64]) -> Result
     check_finite("sensitivity", sensitivity)?;
     check_finite("u_h", u_h)?;
     let rows: Vec<usize> = (0..k).filter(|&i| learned[i]).collect();
-    let push: f64 = u_h.iter().map(|v| v * v).sum();
+    // β̂ does not depend on the push's or the rows' scale: both are scaled to a largest entry of 1,
+    // so that no square overflows.
+    let largest_entry = |v: &mut dyn Iterator<Item = f64>| v.fold(0.0_f64, |m, x| m.max(x.abs()));
+    let push_scale = largest_entry(&mut u_h.iter().copied());
+    let row_scale = largest_entry(&mut rows.iter().flat_map(|&i| sensitivity[i * n..(i + 1) * n].iter().copied()));
     let none = Rationality { beta: 0.0, explained: 0.0, rank: 0 };
-    if rows.is_empty() || push == 0.0 || n == 0 {
+    if rows.is_empty() || push_scale == 0.0 || row_scale == 0.0 || n == 0 {
         return Ok(none);
     }
+    let u_h: Vec<f64> = u_h.iter().map(|v| v / push_scale).collect();
+    let push: f64 = u_h.iter().map(|v| v * v).sum();
     // The learned rows as the columns of an n × L matrix; its left singular vectors span them.
-    let s = DMatrix::from_fn(n, rows.len(), |j, c| sensitivity[rows[c] * n + j]);
+    let s = DMatrix::from_fn(n, rows.len(), |j, c| sensitivity[rows[c] * n + j] / row_scale);
     let svd = s.svd(true, false);
     let largest = svd.singular_values.max();
     let Some(u) = svd.u else { return Err(PhriError::invalid("sensitivity", "its decomposition failed")) };
     if !(largest > 0.0) {
         return Ok(none);
     }
-    let push_vec = DVector::from_column_slice(u_h);
+    let push_vec = DVector::from_column_slice(&u_h);
     let mut rank = 0;
     let mut projected = 0.0;
     for (c, sigma) in svd.singular_values.iter().enumerate() {
@@ -204,46 +210,60 @@ impl Belief {
     /// One push's evidence: Σ⁻¹ += S Sᵀ/(2λ) over the learned rows of `sensitivity` (K × n
     /// row-major, n = `dof`). A refused sensitivity leaves the belief as it was.
     pub fn observe(&mut self, sensitivity: &[f64], dof: usize) -> Result<()> {
+        let evidence = self.evidence(sensitivity, dof)?;
+        self.accept(evidence);
+        Ok(())
+    }
+
+    /// The belief after one push's evidence, without taking it in yet ([`Belief::accept`]): the
+    /// learner checks everything a push could refuse before it changes anything.
+    pub fn evidence(&self, sensitivity: &[f64], dof: usize) -> Result<Evidence> {
         let k = self.len();
         check_vector("sensitivity", sensitivity, k * dof)?;
         check_finite("sensitivity", sensitivity)?;
         let scale = 1.0 / (2.0 * self.effort);
-        let mut added = DMatrix::zeros(self.rows.len(), self.rows.len());
+        let mut precision = self.precision.clone();
         for (a, &i) in self.rows.iter().enumerate() {
             for (b, &j) in self.rows.iter().enumerate() {
                 let si = &sensitivity[i * dof..(i + 1) * dof];
                 let sj = &sensitivity[j * dof..(j + 1) * dof];
-                added[(a, b)] = scale * si.iter().zip(sj).map(|(x, y)| x * y).sum::<f64>();
+                precision[(a, b)] += scale * si.iter().zip(sj).map(|(x, y)| x * y).sum::<f64>();
             }
         }
-        if added.iter().any(|v| !v.is_finite()) {
-            return Err(PhriError::invalid("sensitivity", "is so large that the belief's precision overflows"));
+        let overflow = || PhriError::invalid("sensitivity", "is so large that the belief's precision overflows");
+        if precision.iter().any(|v| !v.is_finite()) {
+            return Err(overflow());
         }
-        self.precision += added;
-        self.refresh();
-        Ok(())
+        let mut covariance = vec![0.0; k * k];
+        if !self.rows.is_empty() {
+            // Symmetric positive definite (the prior's diagonal plus Gram matrices) unless rounding
+            // at extreme scales says otherwise: then refused, never a silent zero.
+            let inverse = precision.clone().cholesky().ok_or_else(overflow)?.inverse();
+            for (a, &i) in self.rows.iter().enumerate() {
+                for (b, &j) in self.rows.iter().enumerate() {
+                    // Symmetrised: the two triangles of a Cholesky inverse differ by rounding.
+                    covariance[i * k + j] = 0.5 * (inverse[(a, b)] + inverse[(b, a)]);
+                }
+            }
+            if covariance.iter().any(|v| !v.is_finite()) {
+                return Err(overflow());
+            }
+        }
+        Ok(Evidence { precision, covariance })
     }
 
-    /// Σ from Σ⁻¹ (symmetric positive definite: the prior's diagonal plus Gram matrices).
-    fn refresh(&mut self) {
-        let k = self.len();
-        self.covariance.fill(0.0);
-        let l = self.rows.len();
-        if l == 0 {
-            return;
-        }
-        let inverse = match self.precision.clone().cholesky() {
-            Some(c) => c.inverse(),
-            // Only rounding can make the sum of a positive diagonal and Gram matrices indefinite.
-            None => self.precision.clone().try_inverse().unwrap_or_else(|| DMatrix::zeros(l, l)),
-        };
-        for (a, &i) in self.rows.iter().enumerate() {
-            for (b, &j) in self.rows.iter().enumerate() {
-                // Symmetrised: the two triangles of a Cholesky inverse differ by rounding.
-                self.covariance[i * k + j] = 0.5 * (inverse[(a, b)] + inverse[(b, a)]);
-            }
-        }
+    /// Takes in the evidence of [`Belief::evidence`].
+    pub fn accept(&mut self, evidence: Evidence) {
+        self.precision = evidence.precision;
+        self.covariance = evidence.covariance;
     }
+}
+
+/// The belief after one more push, from [`Belief::evidence`].
+#[derive(Debug, Clone)]
+pub struct Evidence {
+    precision: DMatrix<f64>,
+    covariance: Vec<f64>,
 }
 
 #[cfg(test)]
@@ -284,6 +304,9 @@ mod tests {
         // Scale-free.
         let big = rationality(&s, &[true, true], &[10.0, 20.0, 20.0]).unwrap();
         assert!((big.beta - r.beta).abs() < 1e-12);
+        // Scale-free down to the last squares: pushes and rows near f64's range do not overflow.
+        let huge = rationality(&[1e300, 0.0, 0.0, 0.0, 1e300, 0.0], &[true, true], &[1e300, 1e300, 1e300]).unwrap();
+        assert!((huge.explained - 2.0 / 3.0).abs() < 1e-12 && (huge.beta - 1.0).abs() < 1e-9, "{huge:?}");
         // Parallel rows have rank 1.
         assert_eq!(rationality(&[1.0, 0.0, 0.0, 2.0, 0.0, 0.0], &[true, true], &[1.0, 1.0, 1.0]).unwrap().rank, 1);
     }

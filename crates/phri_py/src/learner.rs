@@ -419,7 +419,8 @@ impl PyLearnerHistory {
     fn new(py: Python<'_>, history: &History, n: usize, k: usize) -> PyResult<Self> {
         let records = &history.interactions;
         let m = records.len();
-        // Only ΔΦ may be missing from a record (no deformation was made): NaN marks it there.
+        // Only ΔΦ and the covariance may be missing from a record (no deformation was made): NaN
+        // marks them there.
         let rows = |width: usize, row: &dyn Fn(&Interaction) -> &[f64], may_be_empty: bool| -> PyResult<Py<PyArray2<f64>>> {
             let mut values = Vec::with_capacity(m * width);
             for r in records {

@@ -27,6 +27,7 @@ from phri import robots
 from phri._phri import (
     UPDATE_RULES,
     Deformation,
+    Features,
     ImpedanceController,
     InteractionDetector,
     Learner,
@@ -117,11 +118,12 @@ class EpisodeConfig:
     #: (None: none); set it to sensor_bias for a calibrated sensor.
     detector_bias: tuple[float, ...] | None = None
     #: Update rule: "all" (the paper), "max", "confidence" or "beta" (steps scaled by how well the
-    #: learned features explain each push; :mod:`phri.belief`).
+    #: learned features explain each push: :func:`phri.rationality`, docs/concepts.md).
     rule: str = "all"
     #: Risk-aware planning: the learner plans with each learned weight raised by this many of the
     #: belief's standard deviations (w + k·σ, clipped to the bounds; :class:`phri.Learner`'s
-    #: ``risk``); 0 plans with the estimate, as the paper.
+    #: ``risk``); 0 plans with the estimate, as the paper. Learning episodes only: the impedance
+    #: baseline tracks the plan for the initial weights.
     risk: float = 0.0
     #: The simulated person corrects one feature at a time, the most visible first, until it looks
     #: fixed (:class:`~phri.sim.participant.Participant`'s ``one_at_a_time``; HRI 2018). The learner
@@ -307,20 +309,21 @@ class Planner:
         self.features = task.feature_set(model)
         model.check_limits(task.start)
         model.check_limits(task.goal)
-        self.optimizer = TrajectoryOptimizer(
-            self.features,
-            task.waypoints,
-            duration=task.duration,
-            speed_fraction=VELOCITY_MARGIN,
-            knots=task.knots,
-        )
+
+        def optimizer(features: Features) -> TrajectoryOptimizer:
+            return TrajectoryOptimizer(
+                features,
+                task.waypoints,
+                duration=task.duration,
+                speed_fraction=VELOCITY_MARGIN,
+                knots=task.knots,
+            )
+
+        self.optimizer = optimizer(self.features)
         # The person's desired behaviour: the true weights, and the features the robot does not
         # model (Task.unmodelled) at theirs.
         seen = task.seen_by_person()
-        person = self.optimizer if seen is task else TrajectoryOptimizer(
-            seen.feature_set(model), task.waypoints, duration=task.duration, speed_fraction=VELOCITY_MARGIN,
-            knots=task.knots,
-        )  # fmt: skip
+        person = self.optimizer if seen is task else optimizer(seen.feature_set(model))
         self.desired, info = person.solve(seen.vector("true"), task.start, task.goal)
         self.check(info, "true", person)
         self.desired_cost = float(self.features.phi(self.desired)[task.task_index])
@@ -400,6 +403,7 @@ def make_learner(
     `optimizer`: the replans' optimiser (default: the planner's). Seed plans and the worker's spin:
     :func:`replan_settings`."""
     seeds, worker_spin = replan_settings(task, config, replan_latency)
+    learning = config.strategy == "learning"
     update = WeightUpdate(
         task.vector("step"), task.vector("lower"), task.vector("upper"),
         learned=[f.learned for f in task.features], rule=config.rule,  # type: ignore[arg-type]
@@ -414,9 +418,10 @@ def make_learner(
         planner.features, deformation, update, detector, optimizer or planner.optimizer,
         task.vector("initial"), task.start, task.goal,
         duration=task.duration, sample_period=1.0 / config.sample_rate,
-        learning=config.strategy == "learning", transition_speed=config.transition_speed,
+        learning=learning, transition_speed=config.transition_speed,
         replan_latency=replan_latency, seeds=seeds, worker_spin=worker_spin,
-        risk=[config.risk if f.learned else 0.0 for f in task.features] if config.risk else None,
+        # Risk is the learning robot's: the impedance baseline tracks the plan for the initial weights.
+        risk=[config.risk if f.learned else 0.0 for f in task.features] if config.risk and learning else None,
     )  # fmt: skip
 
 

@@ -238,7 +238,8 @@ pub struct Learner {
     jacobian: Vec<f64>,
     sensitivity: Vec<f64>,
     relevance: Vec<f64>,
-    std: Vec<f64>,
+    /// Which features β̂ asks about (learned, with a step).
+    explaining: Vec<bool>,
     u_h: Vec<f64>,
     /// The sampled torque less the detector's bias, on every joint (β̂'s push) [N·m].
     push: Vec<f64>,
@@ -283,9 +284,11 @@ impl Learner {
             check_vector("risk", &params.risk, k)?;
             check_finite("risk", &params.risk)?;
         }
-        let mut std = vec![0.0; k];
         let mut plan_weights = vec![0.0; k];
-        planning_weights(&params.risk, &update, &belief, &weights, &mut std, &mut plan_weights)?;
+        planning_weights(&params.risk, &update, &belief, &weights, &mut plan_weights);
+        // The features β̂ asks about: those the belief has a variance for (learned, step > 0).
+        let p = update.params();
+        let explaining: Vec<bool> = (0..k).map(|i| p.learned[i] && p.step[i] > 0.0).collect();
         let m = optimizer.waypoints();
         let full_cap = optimizer.params().max_iterations;
         let mut levels = optimizer.plan_levels();
@@ -346,7 +349,7 @@ impl Learner {
             jacobian: vec![0.0; k * m * n],
             sensitivity: vec![0.0; k * n],
             relevance: vec![0.0; k],
-            std,
+            explaining,
             u_h: vec![0.0; n],
             push: vec![0.0; n],
             history,
@@ -438,9 +441,8 @@ impl Learner {
         }
         self.weights.clone_from(&self.initial_weights);
         self.belief.reset();
-        // The initial plan's weights, which the reset belief gives again (the slices were sized
-        // at construction, so this cannot fail).
-        let _ = self.refresh_plan_weights();
+        // The initial plan's weights, which the reset belief gives again.
+        self.refresh_plan_weights();
         self.plan.clone_from(&self.initial_plan);
         self.next_sample = 0.0;
         self.last_t = None;
@@ -622,7 +624,7 @@ impl Learner {
         self.compute_sensitivity(index)?;
         // β̂ looks at the whole push: the detector's thresholds zero the joints it barely loads,
         // which would hide how well the features explain it.
-        let rationality = rationality(&self.sensitivity, &self.update.params().learned, &self.push)?;
+        let rationality = rationality(&self.sensitivity, &self.explaining, &self.push)?;
         let relevance = match self.update.params().rule {
             UpdateRule::Confidence => {
                 relevance(&self.delta_phi, &self.sensitivity, &self.u_h, &mut self.relevance)?;
@@ -634,9 +636,11 @@ impl Learner {
             }
             _ => None,
         };
+        // Everything that may refuse the push does so before anything changes.
+        let evidence = self.belief.evidence(&self.sensitivity, n)?;
         let info = self.update.apply(&mut self.weights, &self.delta_phi, relevance)?;
-        self.belief.observe(&self.sensitivity, n)?;
-        self.refresh_plan_weights()?;
+        self.belief.accept(evidence);
+        self.refresh_plan_weights();
         record.delta_phi = self.delta_phi.clone();
         record.weights = self.weights.clone();
         record.update = Some(info);
@@ -646,8 +650,8 @@ impl Learner {
     }
 
     /// `plan_weights` from the estimate and the belief.
-    fn refresh_plan_weights(&mut self) -> Result<()> {
-        planning_weights(&self.params.risk, &self.update, &self.belief, &self.weights, &mut self.std, &mut self.plan_weights)
+    fn refresh_plan_weights(&mut self) {
+        planning_weights(&self.params.risk, &self.update, &self.belief, &self.weights, &mut self.plan_weights);
     }
 
     /// Inline: replans over [0, T] from the original start, warm-started from the current plan
@@ -776,24 +780,16 @@ impl Learner {
 }
 
 /// The weights to plan with: `weights`, or with a `risk` vector w + k ⊙ σ clipped to the bounds.
-/// `std` is scratch (K,); `plan` (K,) receives the weights.
-fn planning_weights(
-    risk: &[f64],
-    update: &WeightUpdate,
-    belief: &Belief,
-    weights: &[f64],
-    std: &mut [f64],
-    plan: &mut [f64],
-) -> Result<()> {
+/// `plan` (K,) receives the weights.
+fn planning_weights(risk: &[f64], update: &WeightUpdate, belief: &Belief, weights: &[f64], plan: &mut [f64]) {
     plan.copy_from_slice(weights);
     if !risk.is_empty() {
-        belief.std(std)?;
+        let (k, covariance) = (weights.len(), belief.covariance());
         for (i, w) in plan.iter_mut().enumerate() {
-            *w += risk[i] * std[i];
+            *w += risk[i] * covariance[i * k + i].max(0.0).sqrt();
         }
         update.clip(plan);
     }
-    Ok(())
 }
 
 /// Checks the timing and mode settings.

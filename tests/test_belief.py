@@ -29,6 +29,21 @@ PUSHES = tuple(
 EFFORT = 0.2
 
 
+def learner_for(task, planner, *, rule="all", deformation=None, **options) -> Learner:
+    """A learner of `task` whose detector sees every push whole (thresholds 0.5 N·m)."""
+    update = WeightUpdate(
+        task.vector("step"),
+        task.vector("lower"),
+        task.vector("upper"),
+        learned=[f.learned for f in task.features],
+        rule=rule,
+    )
+    return Learner(
+        planner.features, deformation or Deformation(), update, InteractionDetector([0.5] * 7),
+        planner.optimizer, task.vector("initial"), task.start, task.goal, duration=task.duration, **options,
+    )  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def two_weights():
     """The table task with the cup's tilt learned too: a learner that records the plan it tracked
@@ -38,18 +53,8 @@ def two_weights():
     )
     robot = phri.Robot.jaco2()
     planner = Planner(task, robot)
-    update = WeightUpdate(
-        task.vector("step"),
-        task.vector("lower"),
-        task.vector("upper"),
-        learned=[f.learned for f in task.features],
-    )
     deformation = Deformation()
-    learner = Learner(
-        planner.features, deformation, update, InteractionDetector([0.5] * 7), planner.optimizer,
-        task.vector("initial"), task.start, task.goal, duration=task.duration, transition_speed=0.0,
-        effort=EFFORT,
-    )  # fmt: skip
+    learner = learner_for(task, planner, deformation=deformation, transition_speed=0.0, effort=EFFORT)
     tracked = []
     for t, tau in PUSHES:
         learner.observe(t - 0.1, np.zeros(7))
@@ -107,16 +112,7 @@ def test_covariance_shrinks_along_corrected_features_only():
     spec = human.features[human.feature_names.index("human")]
     task = dataclasses.replace(task, features=(*task.features, dataclasses.replace(spec, initial=0.0)))
     planner = Planner(task, robot)
-    update = WeightUpdate(
-        task.vector("step"),
-        task.vector("lower"),
-        task.vector("upper"),
-        learned=[f.learned for f in task.features],
-    )
-    learner = Learner(
-        planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
-        task.vector("initial"), task.start, task.goal, duration=task.duration,
-    )  # fmt: skip
+    learner = learner_for(task, planner)
     _, prior = learner.belief()
     for t, tau in PUSHES:
         learner.observe(t, tau)
@@ -159,13 +155,7 @@ def test_beta_rule_scales_the_step_by_rationality(two_weights):
     learned = [f.learned for f in task.features]
 
     def first_push(rule: str):  # -> the learner's history
-        update = WeightUpdate(
-            task.vector("step"), task.vector("lower"), task.vector("upper"), learned=learned, rule=rule
-        )
-        learner = Learner(
-            planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
-            task.vector("initial"), task.start, task.goal, duration=task.duration,
-        )  # fmt: skip
+        learner = learner_for(task, planner, rule=rule)
         learner.observe(1.0, np.array([0.0, 0.0, 0.0, 0.0, 3.0, 0.0, 0.0]))  # a wrist push, partly explained
         return learner.history()
 
@@ -184,33 +174,18 @@ def test_beta_rule_scales_the_step_by_rationality(two_weights):
 def test_risk_aware_planning_weights(two_weights):
     task, planner, _, _, _ = two_weights
     learned = np.array([f.learned for f in task.features])
-    update = WeightUpdate(
-        task.vector("step"), task.vector("lower"), task.vector("upper"), learned=list(learned)
-    )
     risk = np.where(learned, 0.1, 0.0)
-    learner = Learner(
-        planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
-        task.vector("initial"), task.start, task.goal, duration=task.duration, risk=risk,
-    )  # fmt: skip
+    learner = learner_for(task, planner, risk=risk)
     mean, covariance = learner.belief()
     want = np.clip(mean + risk * np.sqrt(np.diag(covariance)), task.vector("lower"), task.vector("upper"))
     np.testing.assert_array_equal(learner.plan_weights, want)
     assert np.all(learner.plan_weights[learned] > mean[learned])
     with pytest.raises(NonFiniteError, match="risk"):
-        Learner(
-            planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
-            task.vector("initial"), task.start, task.goal, risk=[np.nan] * len(learned),
-        )  # fmt: skip
+        learner_for(task, planner, risk=[np.nan] * len(learned))
     with pytest.raises(ShapeError, match="risk"):
-        Learner(
-            planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
-            task.vector("initial"), task.start, task.goal, risk=[0.1],
-        )  # fmt: skip
+        learner_for(task, planner, risk=[0.1])
     with pytest.raises(InvalidParameterError, match="effort"):
-        Learner(
-            planner.features, Deformation(), update, InteractionDetector([0.5] * 7), planner.optimizer,
-            task.vector("initial"), task.start, task.goal, effort=0.0,
-        )  # fmt: skip
+        learner_for(task, planner, effort=0.0)
 
 
 def test_an_episode_plans_with_risk_and_logs_the_belief():

@@ -199,12 +199,16 @@ impl Belief {
 
     /// The standard deviation √Σ_kk of each weight into `out` (K,).
     pub fn std(&self, out: &mut [f64]) -> Result<()> {
-        let k = self.len();
-        check_vector("std", out, k)?;
+        check_vector("std", out, self.len())?;
         for (i, o) in out.iter_mut().enumerate() {
-            *o = self.covariance[i * k + i].max(0.0).sqrt();
+            *o = self.std_of(i);
         }
         Ok(())
+    }
+
+    /// The standard deviation √Σ_ii of weight `i` (< K).
+    pub fn std_of(&self, i: usize) -> f64 {
+        self.covariance[i * self.k + i].max(0.0).sqrt()
     }
 
     /// One push's evidence: Σ⁻¹ += S Sᵀ/(2λ) over the learned rows of `sensitivity` (K × n

@@ -784,9 +784,8 @@ impl Learner {
 fn planning_weights(risk: &[f64], update: &WeightUpdate, belief: &Belief, weights: &[f64], plan: &mut [f64]) {
     plan.copy_from_slice(weights);
     if !risk.is_empty() {
-        let (k, covariance) = (weights.len(), belief.covariance());
         for (i, w) in plan.iter_mut().enumerate() {
-            *w += risk[i] * covariance[i * k + i].max(0.0).sqrt();
+            *w += risk[i] * belief.std_of(i);
         }
         update.clip(plan);
     }

@@ -126,7 +126,10 @@ pub enum KinematicCurvature {
     /// the hand down and the table feature's curvature decides the rest).
     GaussNewton,
     /// Gauss–Newton until the model's pieces agree with its step (the active set has settled) and
-    /// it predicts little more decrease, exact from then on, for a quadratic end.
+    /// it predicts little more decrease, exact from then on, for a quadratic end; back to
+    /// Gauss–Newton for the rest of the solve if a step with it fails, or if its Hessian stays
+    /// indefinite (two steps in a row need more damping than a Newton step's), where no quadratic
+    /// end comes of it.
     #[default]
     Settled,
     /// Include them from the start.

@@ -58,12 +58,15 @@ fn damping(lambda: f64) -> Damping {
     Damping { diagonal: lambda, difference: DAMPING_METRIC * lambda }
 }
 
-/// Where a Newton solve left off: its damping relative to the curvature scale (0: not started)
-/// and whether its model had the kinematic curvature.
+/// Where a Newton solve left off: its damping relative to the curvature scale (0: not started),
+/// whether its model had the kinematic curvature, and whether [`KinematicCurvature::Settled`] had
+/// dropped it (a solve that goes on from here does not take it on again: the exact Hessian was
+/// found indefinite at this problem's iterate).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub(super) struct SolverState {
     pub(super) lambda: f64,
     pub(super) exact: bool,
+    pub(super) fell_back: bool,
 }
 
 /// The Newton iteration's workspace, sized once for N waypoints of n joints.
@@ -121,6 +124,8 @@ struct Run {
     fell_back: bool,
     /// Consecutive steps whose exact model needed more damping than asked, beyond a Newton step's.
     indefinite: usize,
+    /// The damping asked for at the first of those steps: where Gauss–Newton goes on from.
+    lambda_before_indefinite: f64,
 }
 
 impl TrajectoryOptimizer {
@@ -151,7 +156,7 @@ impl TrajectoryOptimizer {
                 break;
             }
         }
-        self.state = SolverState { lambda: run.lambda / run.scale, exact: self.exact_curvature };
+        self.state = SolverState { lambda: run.lambda / run.scale, exact: self.exact_curvature, fell_back: run.fell_back };
         (run.iterations, run.evaluations, run.cost, run.penalty, run.converged)
     }
 
@@ -180,8 +185,9 @@ impl TrajectoryOptimizer {
             lambda_min,
             lambda_max,
             largest,
-            fell_back: false,
+            fell_back: resume.is_some_and(|r| r.fell_back),
             indefinite: 0,
+            lambda_before_indefinite: lambda,
         }
     }
 
@@ -198,11 +204,14 @@ impl TrajectoryOptimizer {
         // The exact Hessian can be indefinite for a step or two on the way to the optimum; where
         // it stays so, no quadratic end comes of the damping it needs, only a linear crawl (the
         // table task with the collision model: 48 iterations for 1e-6 of the cost). Gauss–Newton
-        // then, at the damping it had before.
+        // then, at the damping asked for before the exact model raised it.
         let raised = self.model.exact && run.lambda > asked.max(LOW_DAMPING * run.scale);
+        if raised && run.indefinite == 0 {
+            run.lambda_before_indefinite = asked;
+        }
         run.indefinite = if raised { run.indefinite + 1 } else { 0 };
         if run.indefinite >= INDEFINITE_STEPS && self.drop_settled_curvature(features, weights, &mut run.fell_back) {
-            run.lambda = asked;
+            run.lambda = run.lambda_before_indefinite;
             return true;
         }
         let settled = consistent && predicted <= SETTLED_DECREASE * cost.abs() && !run.fell_back;

@@ -70,7 +70,9 @@ def test_a_study_episode_is_the_same_on_both_simulators(world, planners, name, s
     pushes and the sensor's noise, for the whole task."""
     task = phri.load_task(name)
     person = ParticipantParams.draw(np.random.default_rng(7))
-    runs = both(task, world, person, EpisodeConfig(strategy=strategy), seed=3, planner=planners[name])
+    # Seed 4: this person pushes on every task and moves the learner's weights (with seed 3, since
+    # the off-axis push scales with the push applied, they barely touch the human task's arm).
+    runs = both(task, world, person, EpisodeConfig(strategy=strategy), seed=4, planner=planners[name])
     (native, error), (reference, reference_error) = runs["native"], runs["pybullet"]
     assert error is None and reference_error is None
     # Not vacuous: the person pushed, the robot felt it, and (learning) its weights moved.

@@ -182,6 +182,28 @@ def test_the_arm_is_a_spring_that_builds_up_and_pushes_imprecisely() -> None:
     assert not np.allclose(crooked.push(move)[0], force)
 
 
+def test_an_imprecise_push_errs_by_the_push_applied_not_by_the_wish() -> None:
+    # A large twist wished (30 N·m/rad × 0.5 rad = 15 N·m) but at most 1.5 N·m applied: the grip's
+    # off-axis force is off_axis × 1.5 N·m / 0.1 m = 4.5 N, a direction error of atan(0.3), not
+    # off_axis × the whole wish (45 N, saturated at max_force: a push mostly across the twist).
+    p = ParticipantParams(
+        rotational_stiffness=30.0, max_torque=1.5, max_force=30.0, noise=0.0, rise_time=0.0, off_axis=0.3
+    )
+    twist = np.array([0.0, 0.0, 0.0, 0.5, 0.0, 0.0])
+    force, torque = HumanArm(p, np.random.default_rng(3), 0.01).push(twist)
+    # The twist itself errs by the same angle and saturates at max_torque.
+    assert np.linalg.norm(torque) == pytest.approx(1.5)
+    assert math.atan2(np.linalg.norm(torque[1:]), torque[0]) == pytest.approx(math.atan(0.3))
+    assert np.linalg.norm(force) == pytest.approx(0.3 * 1.5 / 0.1)
+    # A large move likewise: 200 N/m × 0.5 m saturates at 30 N, its twist is 0.3 × 30 N × 0.1 m.
+    p = dataclasses.replace(p, stiffness=200.0)
+    down = np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0])
+    force, torque = HumanArm(p, np.random.default_rng(4), 0.01).push(down)
+    assert np.linalg.norm(force) == pytest.approx(30.0)
+    assert math.atan2(np.linalg.norm(force[:2]), -force[2]) == pytest.approx(math.atan(0.3))
+    assert np.linalg.norm(torque) == pytest.approx(0.3 * 30.0 * 0.1)
+
+
 # -- persistence -------------------------------------------------------------------------------------
 
 

@@ -7,7 +7,8 @@ builds up and settles with the time constant of muscle activation (``rise_time``
 apply a step of force. As the robot yields, the distance and so the push shrink.
 
 People push imprecisely: a push has a component across the direction that would fix the error, of
-``off_axis`` times its size (the tangent of the push's direction error), in a direction drawn anew for
+``off_axis`` times its size (the tangent of the push's direction error; the size of the push they are
+willing to apply, force and twist capped at ``max_force`` and ``max_torque``), in a direction drawn anew for
 each bout, and a twist of the cup comes with a force on the hand that grips it (and a force with a
 twist) by the same rule, force and torque related by the lever ℓ = 0.1 m. This part changes nothing
 the person cares about, so it teaches the robot nothing, but the robot's sensors feel it. On top rides
@@ -95,8 +96,11 @@ class HumanArm:
             )
         if self.across is None:
             self.across = self.aim_rng.normal(0.0, 1.0, 6)
-        intended_force = p.stiffness * move[:3]
-        intended_torque = p.rotational_stiffness * move[3:]
+        # What the person is willing to apply of the wished move: the off-axis part is a direction
+        # error of that push, so it scales with it (a large twist that saturates at max_torque comes
+        # with a grip force of off_axis × max_torque / LEVER, not of off_axis × the whole wish).
+        intended_force = _saturate(p.stiffness * move[:3], p.max_force)
+        intended_torque = _saturate(p.rotational_stiffness * move[3:], p.max_torque)
         size = _norm(intended_force) + _norm(intended_torque) / LEVER  # N
         # A part of the move within rounding of nothing (a task that only tilts the cup, or only
         # moves it) has no direction: the off-axis push then goes along the bout's own direction,

@@ -9,6 +9,7 @@ use common::study::{study_features, task_file, task_scene, TASK_FILES};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use phri_core::collision::{CollisionChecker, ProximityScratch, SELF_MARGIN};
 use phri_core::deform::{DeformParams, Deformation};
+use phri_core::features::FeatureSet;
 use phri_core::impedance::{ImpedanceController, ImpedanceParams};
 use phri_core::interaction::{InteractionDetector, JACO2_THRESHOLDS};
 use phri_core::learner::{Learner, LearnerParams};
@@ -33,6 +34,26 @@ fn true_weight(task: &str) -> f64 {
     let doc = task_file(task);
     let t = &doc["features"][task]["true"];
     t.as_float().unwrap_or_else(|| t.as_integer().unwrap() as f64)
+}
+
+/// The table task's planning problem at its true weights.
+struct TableProblem {
+    /// The JACO2 with the cup.
+    model: Arc<RobotModel>,
+    /// The study's features over link_7.
+    features: FeatureSet,
+    start: Vec<f64>,
+    goal: Vec<f64>,
+    weights: [f64; 2],
+}
+
+const TABLE: &str = "table";
+
+fn table_problem() -> TableProblem {
+    let model = Arc::new(common::jaco2_with_cup());
+    let l7 = model.frame_id("j2s7s300_link_7").unwrap();
+    let features = study_features(model.clone(), l7, &["efficiency", TABLE]);
+    TableProblem { model, features, start: pose(TABLE, "start"), goal: pose(TABLE, "goal"), weights: [1.0, true_weight(TABLE)] }
 }
 
 /// The study's planner with the full collision model: every body and the cup clear of `scene`
@@ -166,12 +187,8 @@ fn the_settled_curvature_does_not_crawl_where_its_hessian_stays_indefinite() {
     // every step and crawled for 48 iterations (68 in all) to gain 1e-6 of the cost. Settled now
     // drops the curvature there: it reaches the Gauss–Newton solve's optimum in about as many
     // iterations as it, and the exact solve's optimum.
-    let task = "table";
-    let model = Arc::new(common::jaco2_with_cup());
-    let l7 = model.frame_id("j2s7s300_link_7").unwrap();
-    let mut fs = study_features(model.clone(), l7, &["efficiency", task]);
-    let (start, goal) = (pose(task, "start"), pose(task, "goal"));
-    let weights = [1.0, true_weight(task)];
+    let TableProblem { model, features: mut fs, start, goal, weights } = table_problem();
+    let task = TABLE;
     let mut solve = |curvature| {
         let params = TrajoptParams { kinematic_curvature: curvature, ..planner(&model, &task_scene(task)) };
         let mut opt = TrajectoryOptimizer::new(&fs, WAYPOINTS, params).unwrap();
@@ -197,12 +214,8 @@ fn a_solve_that_goes_on_after_the_settled_curvature_fell_back_stays_converged() 
     // task, each such replan took it on again, found it indefinite again and spent 4-5 iterations
     // per level falling back (the seeded replans' p99 rose from 1.1 to 2.3 ms). The state now
     // says it fell back: the replans stay on Gauss-Newton, at the optimum they had.
-    let task = "table";
-    let model = Arc::new(common::jaco2_with_cup());
-    let l7 = model.frame_id("j2s7s300_link_7").unwrap();
-    let mut fs = study_features(model.clone(), l7, &["efficiency", task]);
-    let (start, goal) = (pose(task, "start"), pose(task, "goal"));
-    let weights = [1.0, true_weight(task)];
+    let TableProblem { model, features: mut fs, start, goal, weights } = table_problem();
+    let task = TABLE;
     let mut opt = TrajectoryOptimizer::new(&fs, WAYPOINTS, planner(&model, &task_scene(task))).unwrap();
     let mut levels = opt.plan_levels();
     let cold = opt.solve_levels(&mut fs, &weights, &start, &goal, None, &mut levels).unwrap();

@@ -202,6 +202,11 @@ def test_an_imprecise_push_errs_by_the_push_applied_not_by_the_wish() -> None:
     assert np.linalg.norm(force) == pytest.approx(30.0)
     assert math.atan2(np.linalg.norm(force[:2]), -force[2]) == pytest.approx(math.atan(0.3))
     assert np.linalg.norm(torque) == pytest.approx(0.3 * 30.0 * 0.1)
+    # The wished move and the lag pull as one spring, capped together: 200 N/m × (−0.5 + 0.1) m is
+    # still beyond max_force (not the capped move's 30 N less the lag's 20 N).
+    exact = dataclasses.replace(p, off_axis=0.0)
+    force, _ = HumanArm(exact, np.random.default_rng(5), 0.01).push(down, np.array([0.0, 0.0, 0.1, 0, 0, 0]))
+    np.testing.assert_allclose(force, [0.0, 0.0, -30.0], atol=1e-12)
 
 
 # -- persistence -------------------------------------------------------------------------------------

@@ -96,25 +96,36 @@ class HumanArm:
             )
         if self.across is None:
             self.across = self.aim_rng.normal(0.0, 1.0, 6)
-        # What the person is willing to apply of the wished move: the off-axis part is a direction
-        # error of that push, so it scales with it (a large twist that saturates at max_torque comes
-        # with a grip force of off_axis × max_torque / LEVER, not of off_axis × the whole wish).
-        intended_force = _saturate(p.stiffness * move[:3], p.max_force)
-        intended_torque = _saturate(p.rotational_stiffness * move[3:], p.max_torque)
-        size = _norm(intended_force) + _norm(intended_torque) / LEVER  # N
+        intended_force = p.stiffness * move[:3]
+        intended_torque = p.rotational_stiffness * move[3:]
+        # The off-axis part is a direction error of the push the person applies, so it scales with
+        # what they are willing to apply of the wished move (a large twist capped at max_torque
+        # comes with a grip force of off_axis × max_torque / LEVER, not off_axis × the whole wish).
+        size = (
+            _norm(_saturate(intended_force, p.max_force))
+            + _norm(_saturate(intended_torque, p.max_torque)) / LEVER
+        )
         # A part of the move within rounding of nothing (a task that only tilts the cup, or only
         # moves it) has no direction: the off-axis push then goes along the bout's own direction,
         # not across one that rounding made up (which would flip with the last bit of the pose).
         negligible = NEGLIGIBLE * size
         along_force = intended_force if _norm(intended_force) > negligible else np.zeros(3)
         along_torque = intended_torque if _norm(intended_torque) / LEVER > negligible else np.zeros(3)
-        wished_force = intended_force + p.off_axis * size * _across(self.across[:3], along_force)
-        wished_torque = intended_torque + p.off_axis * size * LEVER * _across(self.across[3:], along_torque)
+        # The arm's spring pulls by the wished move and the lag together, capped as one pull; the
+        # off-axis part rides on it, and the whole push is capped again.
         if lag is not None:
-            wished_force = wished_force + p.stiffness * lag[:3]
-            wished_torque = wished_torque + p.rotational_stiffness * lag[3:]
-        wished_force = _saturate(wished_force, p.max_force)
-        wished_torque = _saturate(wished_torque, p.max_torque)
+            intended_force = intended_force + p.stiffness * lag[:3]
+            intended_torque = intended_torque + p.rotational_stiffness * lag[3:]
+        wished_force = _saturate(
+            _saturate(intended_force, p.max_force)
+            + p.off_axis * size * _across(self.across[:3], along_force),
+            p.max_force,
+        )
+        wished_torque = _saturate(
+            _saturate(intended_torque, p.max_torque)
+            + p.off_axis * size * LEVER * _across(self.across[3:], along_torque),
+            p.max_torque,
+        )
         self.force += self.follow * (wished_force - self.force)
         self.torque += self.follow * (wished_torque - self.torque)
         return (

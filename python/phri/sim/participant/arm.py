@@ -113,19 +113,14 @@ class HumanArm:
         along_torque = intended_torque if _norm(intended_torque) / LEVER > negligible else np.zeros(3)
         # The arm's spring pulls by the wished move and the lag together, capped as one pull; the
         # off-axis part rides on it, and the whole push is capped again.
+        pull_force, pull_torque = intended_force, intended_torque
         if lag is not None:
-            intended_force = intended_force + p.stiffness * lag[:3]
-            intended_torque = intended_torque + p.rotational_stiffness * lag[3:]
-        wished_force = _saturate(
-            _saturate(intended_force, p.max_force)
-            + p.off_axis * size * _across(self.across[:3], along_force),
-            p.max_force,
-        )
-        wished_torque = _saturate(
-            _saturate(intended_torque, p.max_torque)
-            + p.off_axis * size * LEVER * _across(self.across[3:], along_torque),
-            p.max_torque,
-        )
+            pull_force = pull_force + p.stiffness * lag[:3]
+            pull_torque = pull_torque + p.rotational_stiffness * lag[3:]
+        stray_force = p.off_axis * size * _across(self.across[:3], along_force)
+        stray_torque = p.off_axis * size * LEVER * _across(self.across[3:], along_torque)
+        wished_force = _saturate(_saturate(pull_force, p.max_force) + stray_force, p.max_force)
+        wished_torque = _saturate(_saturate(pull_torque, p.max_torque) + stray_torque, p.max_torque)
         self.force += self.follow * (wished_force - self.force)
         self.torque += self.follow * (wished_torque - self.torque)
         return (

@@ -299,19 +299,29 @@ class FailsOnTheWorker(PythonTable):
         return super().value(q)
 
 
-def test_a_worker_replan_whose_python_feature_raises_is_rejected_and_logged(table_task):
+def test_a_correction_whose_python_feature_raises_on_the_worker_is_rejected_and_logged(table_task):
+    """The worker learns from the correction (ΔΦ calls the feature) before it replans: the
+    correction teaches nothing, the arm keeps its plan, and the history says why."""
     robot = phri.Robot.jaco2()
     features = phri.Features(robot, ["efficiency", FailsOnTheWorker(robot)], scene=table_task.scene)
     learner = learner_for(features, table_task, replan_latency=0.01)
-    plan0 = learner.plan
+    plan0, weights0 = learner.plan, learner.weights
     for k in range(3900, 4300):
         t = k * TICK
         learner.observe(t, push(robot, learner, t) if k == 4000 else np.zeros(7))
     np.testing.assert_array_equal(learner.plan, plan0)
+    np.testing.assert_array_equal(learner.weights, weights0)
     history = learner.history()
-    assert learner.weights[1] > 0.0, "the weights were updated; only the replan failed"
+    assert len(history) == 1 and history.updates == [None], "the push is recorded, without an update"
     assert len(history.rejected) == 1, history.rejected
+    assert history.rejected[0].startswith("learning failed: ")
     assert "feature 'table'" in history.rejected[0] and "the lab's sensor is offline" in history.rejected[0]
+    # The same feature inline, on the main thread, learns.
+    inline = learner_for(features, table_task, replan_latency=0.0)
+    for k in range(3900, 4300):
+        t = k * TICK
+        inline.observe(t, push(robot, inline, t) if k == 4000 else np.zeros(7))
+    assert inline.weights[1] > weights0[1]
 
 
 # --------------------------------------------------------------------------------------------------

@@ -28,9 +28,10 @@ when it asks for exact curvature, near the end of a solve; its first, convex pha
 curvature from the feature (see docs/features.md).
 
 A feature that raises, returns the wrong shape or a non-finite value, or takes longer than its
-``timeout`` [s] for one call, is a :class:`phri.exceptions.FeatureError` naming it; a replan on
-the learner's worker thread that meets one is rejected (the arm keeps its plan) and recorded in
-the history. The learner's worker calls the feature from its own thread, holding the GIL only
+``timeout`` [s] for one call, is a :class:`phri.exceptions.FeatureError` naming it; a
+correction that the learner's worker thread learns from or replans for and that meets one is
+rejected (the arm keeps its plan; a failed learning leaves the weights too) and recorded in the
+history. The learner's worker calls the feature from its own thread, holding the GIL only
 during the call.
 """
 

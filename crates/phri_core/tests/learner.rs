@@ -310,13 +310,17 @@ fn check_one_tick_latency_is_inline(task: Task, sample_period: f64, seeds: usize
     let ticks = (15.0 / TICK).round() as usize;
     let (mut requests, mut adoptions) = (0, 0);
     let mut requested_last_tick = false;
+    let mut inline_weights_last_tick = inline.weights().to_vec();
     for k in 0..=ticks {
         let t = k as f64 * TICK;
         let tau = if pushing(t, windows) { corrective(&inline, task, t) } else { vec![0.0; 7] };
         let a = inline.observe(t, &tau).unwrap();
         let b = worker.observe(t, &tau).unwrap();
         assert_eq!((a.sampled, a.interacted), (b.sampled, b.interacted), "{}: tick {k}", task.0);
-        assert_eq!(inline.weights(), worker.weights(), "{}: weights at tick {k}", task.0);
+        // The worker learns from a push before it replans: its weights arrive with the plan, a tick
+        // after inline's.
+        assert_eq!(inline_weights_last_tick, worker.weights(), "{}: weights at tick {k}", task.0);
+        inline_weights_last_tick.copy_from_slice(inline.weights());
         // The worker adopts one tick after the request, blending in from the request's tick.
         assert_eq!(b.adopted, requested_last_tick, "{}: tick {k}", task.0);
         requested_last_tick = a.replanned;
@@ -694,4 +698,141 @@ fn worker_settings_and_absurd_transition_speeds_are_refused() {
     assert!(inline.debug_stall_worker(1.0).is_err() && inline.debug_panic_worker().is_err());
     let worker = make(LearnerParams { replan_latency: ReplanLatency::WallClock, ..Default::default() }).unwrap();
     assert!(worker.debug_stall_worker(f64::NAN).is_err() && worker.debug_stall_worker(61.0).is_err());
+}
+
+/// φ = z − `top` of the cup frame at each waypoint [m] (the table feature without its smoothing),
+/// counting the segments evaluated on the thread `control`.
+#[derive(Clone)]
+struct WatchedHeight {
+    frame: phri_core::FrameId,
+    top: f64,
+    control: std::thread::ThreadId,
+    on_control: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl phri_core::features::Feature for WatchedHeight {
+    fn name(&self) -> &str {
+        "height"
+    }
+
+    fn segment(&self, seg: &mut phri_core::features::Segment<'_>, grad: Option<phri_core::features::SegmentGrad<'_>>) -> f64 {
+        if std::thread::current().id() == self.control {
+            self.on_control.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        let frame = Some(self.frame);
+        let value = seg.point_of(frame, 1.0).position.z - self.top;
+        if let Some(g) = grad {
+            let jac = seg.jacobian_of(frame, 1.0);
+            for j in 0..g.this.len() {
+                g.this[j] += g.scale * jac[(2, j)];
+            }
+            if let Some(h) = g.hessian {
+                if h.kinematic() {
+                    seg.add_position_curvature_of(frame, 1.0, &Vector3::z(), g.scale, h);
+                }
+            }
+        }
+        value
+    }
+}
+
+/// The table task's learner with [`WatchedHeight`] for its feature, counting into `on_control`.
+fn watched_learner(params: LearnerParams, on_control: &Arc<std::sync::atomic::AtomicUsize>) -> Learner {
+    let model = Arc::new(jaco2());
+    let l7 = model.frame_id("j2s7s300_link_7").unwrap();
+    let watched = WatchedHeight {
+        frame: l7,
+        top: common::study::table_top(),
+        control: std::thread::current().id(),
+        on_control: on_control.clone(),
+    };
+    let features: Vec<Box<dyn phri_core::features::Feature>> = vec![Box::new(phri_core::features::Efficiency), Box::new(watched)];
+    let fs = phri_core::features::FeatureSet::new(model, l7, features).unwrap();
+    let opt = TrajectoryOptimizer::new(&fs, 31, TrajoptParams::default()).unwrap();
+    let update = common::one_feature_update(2.0, 1.0, UpdateRule::All);
+    let detector = InteractionDetector::new(JACO2_THRESHOLDS.to_vec(), None).unwrap();
+    let deformation = Deformation::new(DeformParams::default()).unwrap();
+    Learner::new(params, fs, deformation, update, detector, opt, &[1.0, 0.0], &deg(PICK_BASIC), &deg(PLACE_LOWER)).unwrap()
+}
+
+#[test]
+fn with_a_worker_the_control_thread_evaluates_no_feature_and_the_worker_learns() {
+    use std::sync::atomic::Ordering::Relaxed;
+    for latency in [ReplanLatency::Fixed(0.0), ReplanLatency::Fixed(0.01), ReplanLatency::WallClock] {
+        let on_control = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let mut l = watched_learner(LearnerParams { replan_latency: latency, ..Default::default() }, &on_control);
+        // The initial plan is made on this thread, by the constructor (the height's weight is 0
+        // there, so only its seeds would evaluate it): the counter counts from here.
+        on_control.store(0, Relaxed);
+        let t0 = 4.0;
+        let tau = push(&l, t0, Vector3::new(0.0, 0.0, -25.0), Vector3::zeros());
+        assert!(l.observe(t0, &tau).unwrap().interacted);
+        let mut t = t0;
+        while l.replan_pending() {
+            std::thread::sleep(std::time::Duration::from_micros(200));
+            t = (t + TICK).min(14.0);
+            l.observe(t, &[0.0; 7]).unwrap();
+        }
+        let record = &l.history().interactions[0];
+        assert!(record.update.is_some() && record.rationality.is_some() && record.replan.is_some(), "{latency:?}");
+        assert!(l.weights()[1] > 0.0, "{latency:?}: the push down taught the height: {:?}", l.weights());
+        assert_eq!(record.weights, l.weights());
+        assert_eq!(l.belief().1, &record.covariance[..]);
+        assert!(record.covariance[3] < 2.0, "{latency:?}: the belief narrowed: {:?}", record.covariance);
+        let calls = on_control.load(Relaxed);
+        if latency.uses_worker() {
+            assert_eq!(calls, 0, "{latency:?}: Φ evaluated {calls} times on the control thread");
+        } else {
+            // ΔΦ with its gradient and the replan, inline.
+            assert!(calls >= 2, "{latency:?}: {calls}");
+        }
+    }
+}
+
+#[test]
+fn a_worker_learns_from_every_correction_in_order_when_they_queue_up() {
+    // 40 pushes sampled on 40 ticks in a row while the worker is stalled: it takes the first, the
+    // request slot holds 16, the control side's queue 16 and then grows (no tick waits). A
+    // simulated latency longer than the pushes sees the same corrections (the arm tracks its first
+    // plan throughout), so both learn the same, push by push.
+    // A small step, so that the weight does not reach its bound within the pushes.
+    let params = LearnerParams { sample_period: TICK, ..Default::default() };
+    let make = |replan_latency| {
+        let params = LearnerParams { replan_latency, ..params.clone() };
+        learner_with("table", PICK_BASIC, PLACE_LOWER, 0.02, 1.0, UpdateRule::All, params)
+    };
+    let (mut wall, mut fixed) = (make(ReplanLatency::WallClock), make(ReplanLatency::Fixed(0.5)));
+    wall.debug_stall_worker(0.3).unwrap();
+    let pushes = 40;
+    let mut slowest = std::time::Duration::ZERO;
+    for k in 0..pushes {
+        let t = 4.0 + k as f64 * TICK;
+        let tau = corrective(&fixed, TABLE, t);
+        let began = std::time::Instant::now();
+        assert!(wall.observe(t, &tau).unwrap().interacted);
+        slowest = slowest.max(began.elapsed());
+        assert!(fixed.observe(t, &tau).unwrap().interacted);
+    }
+    assert!(slowest < std::time::Duration::from_millis(100), "a tick waited {slowest:?} for the stalled worker");
+    let mut t = 4.0 + pushes as f64 * TICK;
+    while wall.replan_pending() || fixed.replan_pending() {
+        std::thread::sleep(std::time::Duration::from_micros(500));
+        t = (t + TICK).min(14.0);
+        wall.observe(t, &[0.0; 7]).unwrap();
+        fixed.observe(t, &[0.0; 7]).unwrap();
+    }
+    assert_eq!(wall.superseded_replans(), pushes as u64 - 1);
+    let strip = |l: &Learner| {
+        let mut h = l.history().interactions.clone();
+        h.iter_mut().for_each(|i| i.replan = None);
+        h
+    };
+    let (a, b) = (strip(&wall), strip(&fixed));
+    assert_eq!(a.len(), pushes);
+    assert!(a.iter().all(|i| i.update.is_some()), "every correction was learned from");
+    assert_eq!(a, b, "the stalled wall-clock worker learned as the simulated latency did");
+    assert!(a.windows(2).all(|w| w[1].weights[1] > w[0].weights[1]), "in order: each push down raises the weight");
+    assert!(a[pushes - 1].weights[1] < 1.0, "within the bound: {:?}", a[pushes - 1].weights);
+    assert_eq!(wall.weights(), fixed.weights());
+    assert_eq!(wall.weights(), &a[pushes - 1].weights[..]);
 }

@@ -3,23 +3,31 @@
 //! (eq. 4) warm-started, while `reference(t)` feeds the control law. With `learning = false` it is
 //! the impedance baseline: interactions are recorded but the plan never changes.
 //!
-//! # Where the replan runs ([`LearnerParams::replan_latency`])
-//! Inline (latency 0, the default), `observe` replans before it returns, as Algorithm 1 is written.
-//! Otherwise `observe` does the microseconds of detect → deform → update on the control thread and
-//! hands the replan to a worker thread (module `worker`); the control tick never waits for it except in
-//! simulated mode, and its plan is adopted later, blended in as an inline replan's is, from the
-//! reference of the previous `observe` (the last one the controller used):
-//! - [`ReplanLatency::Fixed`]`(L)`, L > 0: a deterministic, simulated latency. The plan is adopted
-//!   at the first `observe` with t ≥ t_request + L; that call waits for the worker if it has not
-//!   finished, so results do not depend on the machine's load. With L one tick of a loop that
-//!   calls `observe` every tick, the results are those of inline replanning, bit for bit.
-//! - [`ReplanLatency::WallClock`]: hardware. The plan is adopted at the first `observe` after the
-//!   worker finished; `observe` never waits.
+//! # Where the learning and the replan run ([`LearnerParams::replan_latency`])
+//! Inline (latency 0, the default), `observe` learns and replans before it returns, as Algorithm 1
+//! is written. Otherwise `observe` only detects the push and deforms the plan on the control
+//! thread (a few microseconds, no feature evaluated) and hands the correction to a worker thread
+//! (module `worker`): the worker learns from every correction in the order they came (ΔΦ with its
+//! gradient, β̂, the belief, the update; module `learning`), then replans for the newest weights.
+//! The control tick never waits for it except in simulated mode, and what it learned and planned
+//! is taken in later, the plan blended in as an inline replan's is, from the reference of the
+//! previous `observe` (the last one the controller used):
+//! - [`ReplanLatency::Fixed`]`(L)`, L > 0: a deterministic, simulated latency. The plan is adopted,
+//!   and the weights and the belief of the corrections so far taken in, at the first `observe`
+//!   with t ≥ t_request + L; that call waits for the worker if it has not finished, so results do
+//!   not depend on the machine's load. With L one tick of a loop that calls `observe` every tick,
+//!   the results are those of inline replanning, bit for bit (the weights a tick later).
+//! - [`ReplanLatency::WallClock`]: hardware. What the worker learned is taken in at the first
+//!   `observe` after it posted it, the plan at the first `observe` after the worker finished;
+//!   `observe` never waits.
 //!
 //! A newer correction supersedes a replan still running (its solve stops at the next Newton
-//! iteration); only the newest result is adopted, and an infeasible one is rejected as inline.
+//! iteration); only the newest result is adopted, and an infeasible one is rejected as inline. A
+//! correction whose learning fails on the worker changes nothing: a feature's failure is
+//! recorded as a rejected plan, any other error is returned by the `observe` that takes it in.
 
 mod history;
+mod learning;
 mod planner;
 mod seeds;
 mod worker;
@@ -27,19 +35,20 @@ mod worker;
 use std::time::Duration;
 
 pub use history::{History, Interaction, RejectedPlan};
+use learning::{Correction, Learned, Learning};
 pub use planner::infeasibility;
 use planner::Planner;
 use seeds::Seeds;
 use worker::{Outcome, ReplanWorker};
 
-use crate::belief::{rationality, Belief, DEFAULT_EFFORT};
+use crate::belief::{Belief, DEFAULT_EFFORT};
 use crate::deform::Deformation;
 use crate::error::{check_finite, check_vector, PhriError, Result};
 use crate::features::FeatureSet;
 use crate::interaction::InteractionDetector;
 use crate::reference::{Interpolation, TimedTrajectory, MIN_SPEED_LIMIT};
 use crate::trajopt::{TrajectoryOptimizer, TrajoptInfo};
-use crate::update::{relevance, UpdateRule, WeightUpdate};
+use crate::update::WeightUpdate;
 
 /// When a replan's plan takes effect (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -182,28 +191,49 @@ struct Pending {
     record: usize,
 }
 
-/// Where replans run.
+/// Where corrections are learned from and replans run.
 enum Replanner {
-    Inline(Box<Planner>),
+    Inline { planner: Box<Planner>, learning: Box<Learning> },
     Worker(ReplanWorker),
+}
+
+/// The weights and the belief as the control side knows them.
+#[derive(Debug, Clone)]
+struct Estimate {
+    /// The estimate w (the belief's mean).
+    weights: Vec<f64>,
+    /// The belief's covariance Σ, K × K row-major [weight²].
+    covariance: Vec<f64>,
+    /// The weights the planner plans with: w, or with `LearnerParams::risk`, w + k ⊙ σ.
+    plan_weights: Vec<f64>,
+}
+
+impl Estimate {
+    /// Takes in what a correction taught, into the estimate and the correction's `record`.
+    fn take(&mut self, record: &mut Interaction, learned: Learned) {
+        self.weights.copy_from_slice(&learned.weights);
+        self.plan_weights.copy_from_slice(&learned.plan_weights);
+        self.covariance.copy_from_slice(&learned.covariance);
+        record.delta_phi = learned.delta_phi;
+        record.weights = learned.weights;
+        record.update = Some(learned.update);
+        record.rationality = Some(learned.rationality);
+        record.covariance = learned.covariance;
+    }
 }
 
 /// Algorithm 1.
 pub struct Learner {
     params: LearnerParams,
-    features: FeatureSet,
     deformation: Deformation,
-    update: WeightUpdate,
     detector: InteractionDetector,
     replanner: Replanner,
-    weights: Vec<f64>,
-    /// The Gaussian belief over the weights (mean: `weights`).
-    belief: Belief,
-    /// The weights the planner plans with: `weights`, or with `LearnerParams::risk`, w + k ⊙ σ.
-    plan_weights: Vec<f64>,
+    /// The weights and the belief: inline, as learned; with a worker, as of the last correction
+    /// whose learning the control side collected.
+    estimate: Estimate,
     plan: TimedTrajectory,
     /// What `reset` returns to.
-    initial_weights: Vec<f64>,
+    initial_estimate: Estimate,
     initial_plan: TimedTrajectory,
     /// Index k of the next sample instant k·sample_period.
     next_sample: f64,
@@ -227,22 +257,10 @@ pub struct Learner {
     /// What happened, for logs and plots.
     history: History,
     // Scratch of one tick, sized once so that a tick allocates nothing (tests/alloc.rs).
-    tracked_plan: Vec<f64>,
+    /// The push being taken: the tracked plan, its deformation, the push.
+    correction: Correction,
     rates: Vec<f64>,
-    deformed: Vec<f64>,
-    shape: Vec<f64>,
     ones: Vec<f64>,
-    phi_r: Vec<f64>,
-    phi_h: Vec<f64>,
-    delta_phi: Vec<f64>,
-    jacobian: Vec<f64>,
-    sensitivity: Vec<f64>,
-    relevance: Vec<f64>,
-    /// Which features β̂ asks about (learned, with a step).
-    explaining: Vec<bool>,
-    u_h: Vec<f64>,
-    /// The sampled torque less the detector's bias, on every joint (β̂'s push) [N·m].
-    push: Vec<f64>,
 }
 
 impl Learner {
@@ -284,12 +302,9 @@ impl Learner {
             check_vector("risk", &params.risk, k)?;
             check_finite("risk", &params.risk)?;
         }
-        let mut plan_weights = vec![0.0; k];
-        planning_weights(&params.risk, &update, &belief, &weights, &mut plan_weights);
-        // The features β̂ asks about: those the belief has a variance for (learned, step > 0).
-        let p = update.params();
-        let explaining: Vec<bool> = (0..k).map(|i| p.learned[i] && p.step[i] > 0.0).collect();
         let m = optimizer.waypoints();
+        let learning = Learning::new(features.clone(), update, belief, params.risk.clone(), weights, m);
+        let plan_weights = learning.plan_weights().to_vec();
         let full_cap = optimizer.params().max_iterations;
         let mut levels = optimizer.plan_levels();
         let info = optimizer.solve_levels(&mut features, &plan_weights, start, goal, None, &mut levels)?;
@@ -299,33 +314,35 @@ impl Learner {
             });
         }
         let plan0 = levels.plan().to_vec();
-        let seeds = Seeds::plan(params.seeds, &update, &plan_weights, &mut features, &mut optimizer, start, goal)?;
+        let seeds = Seeds::plan(params.seeds, learning.update(), &plan_weights, &mut features, &mut optimizer, start, goal)?;
         if params.replan_iterations > 0 {
             // The initial plan converged above; replans keep to the per-tick budget.
             optimizer.set_max_iterations(params.replan_iterations.min(full_cap))?;
         }
         let plan = TimedTrajectory::new(plan0.clone(), n, params.duration, params.interpolation)?;
-        let planner = Planner::new(features.clone(), optimizer, start, goal, seeds, levels)?;
+        let estimate = Estimate {
+            weights: learning.weights().to_vec(),
+            covariance: learning.covariance().to_vec(),
+            plan_weights: learning.plan_weights().to_vec(),
+        };
+        let planner = Planner::new(features, optimizer, start, goal, seeds, levels)?;
         let replanner = if params.replan_latency.uses_worker() {
             Replanner::Worker(ReplanWorker::spawn(
                 planner,
-                k,
+                learning,
+                Correction::new(m, n),
                 Duration::try_from_secs_f64(params.worker_spin).unwrap_or(Duration::MAX),
             )?)
         } else {
-            Replanner::Inline(Box::new(planner))
+            Replanner::Inline { planner: Box::new(planner), learning: Box::new(learning) }
         };
         let history = History { interactions: Vec::new(), plans: vec![(0.0, plan0)], rejected: Vec::new() };
         Ok(Learner {
-            features,
             deformation,
-            update,
             detector,
             replanner,
-            initial_weights: weights.clone(),
-            weights,
-            belief,
-            plan_weights,
+            initial_estimate: estimate.clone(),
+            estimate,
             initial_plan: plan.clone(),
             plan,
             next_sample: 0.0,
@@ -338,20 +355,9 @@ impl Learner {
             superseded: 0,
             last_converged: None,
             last_observation: Observation::default(),
-            tracked_plan: vec![0.0; m * n],
+            correction: Correction::new(m, n),
             rates: vec![0.0; 2 * n],
-            deformed: vec![0.0; m * n],
-            shape: vec![0.0; m * n],
             ones: vec![1.0; n],
-            phi_r: vec![0.0; k],
-            phi_h: vec![0.0; k],
-            delta_phi: vec![0.0; k],
-            jacobian: vec![0.0; k * m * n],
-            sensitivity: vec![0.0; k * n],
-            relevance: vec![0.0; k],
-            explaining,
-            u_h: vec![0.0; n],
-            push: vec![0.0; n],
             history,
             params,
         })
@@ -361,31 +367,28 @@ impl Learner {
         &self.params
     }
 
-    /// Current weights w (cost form).
+    /// Current weights w (cost form). With a replan worker, which learns from each correction
+    /// before it replans, they are those of the last correction whose plan was adopted or
+    /// rejected (simulated latency: at t_push + L; wall clock: as soon as the worker is done).
     pub fn weights(&self) -> &[f64] {
-        &self.weights
+        &self.estimate.weights
     }
 
     /// The belief over the weights: its mean (the estimate, [`Learner::weights`]) and covariance
     /// Σ (K × K row-major [weight²]; see [`crate::belief`]).
     pub fn belief(&self) -> (&[f64], &[f64]) {
-        (&self.weights, self.belief.covariance())
+        (&self.estimate.weights, &self.estimate.covariance)
     }
 
     /// The weights the planner plans with: the estimate, or with `LearnerParams::risk` the
     /// risk-aware w + k ⊙ σ.
     pub fn plan_weights(&self) -> &[f64] {
-        &self.plan_weights
+        &self.estimate.plan_weights
     }
 
     /// Current plan ξ_R, N × n row-major.
     pub fn plan(&self) -> &TimedTrajectory {
         &self.plan
-    }
-
-    /// The control side's features (deformation and ΔΦ); a worker replans with its own copy.
-    pub fn features(&mut self) -> &mut FeatureSet {
-        &mut self.features
     }
 
     pub fn history(&self) -> &History {
@@ -436,13 +439,14 @@ impl Learner {
     /// from t = 0. Seeds are kept.
     pub fn reset(&mut self) {
         match &mut self.replanner {
-            Replanner::Inline(planner) => planner.restart(),
+            Replanner::Inline { planner, learning } => {
+                planner.restart();
+                learning.reset();
+            }
+            // The worker resets its learning before it takes the next correction.
             Replanner::Worker(worker) => worker.cancel(),
         }
-        self.weights.clone_from(&self.initial_weights);
-        self.belief.reset();
-        // The initial plan's weights, which the reset belief gives again.
-        self.refresh_plan_weights();
+        self.estimate.clone_from(&self.initial_estimate);
         self.plan.clone_from(&self.initial_plan);
         self.next_sample = 0.0;
         self.last_t = None;
@@ -477,7 +481,7 @@ impl Learner {
     fn worker(&self, what: &str) -> Result<&ReplanWorker> {
         match &self.replanner {
             Replanner::Worker(w) => Ok(w),
-            Replanner::Inline(_) => Err(PhriError::invalid(
+            Replanner::Inline { .. } => Err(PhriError::invalid(
                 what,
                 "needs a replan worker (replan_latency > 0, or the wall clock); this learner replans inline",
             )),
@@ -486,13 +490,14 @@ impl Learner {
 
     /// One tick: adopt a replan the worker has finished (if due), then at each sample instant
     /// read the measured joint torque of the person `tau_measured` [N·m] and, on an interaction,
-    /// deform → update → replan (inline) or hand the replan to the worker. Between samples it
-    /// returns at once. `t` [s] lies in [0, duration + [`TIME_SLACK`]] and never goes back (see
-    /// `reset`); a refused `t` or torque leaves the learner as it was. No allocation unless an
-    /// interaction is recorded.
+    /// deform → update → replan (inline) or deform and hand the correction to the worker, which
+    /// updates the weights and the belief and replans. Between samples it returns at once. `t` [s] lies in [0, duration + [`TIME_SLACK`]] and never goes back (see
+    /// `reset`); a refused `t` or torque leaves the learner as it was. With a worker, an error
+    /// may also be an earlier correction's that failed there (see the module docs). No
+    /// allocation unless an interaction is recorded.
     pub fn observe(&mut self, t: f64, tau_measured: &[f64]) -> Result<Observation> {
         self.check_time(t)?;
-        check_vector("tau_measured", tau_measured, self.u_h.len())?;
+        check_vector("tau_measured", tau_measured, self.ones.len())?;
         let mut obs = Observation::default();
         // The reference the controller used last: a plan adopted now blends in from it.
         let anchor = self.last_t.unwrap_or(t);
@@ -511,8 +516,8 @@ impl Learner {
         }
         self.next_sample = position.floor() + 1.0;
         obs.sampled = true;
-        obs.interacted = self.detector.detect(tau_measured, &mut self.u_h)?;
-        for ((p, tau), b) in self.push.iter_mut().zip(tau_measured).zip(self.detector.bias()) {
+        obs.interacted = self.detector.detect(tau_measured, &mut self.correction.u_h)?;
+        for ((p, tau), b) in self.correction.push.iter_mut().zip(tau_measured).zip(self.detector.bias()) {
             *p = tau - b;
         }
         if !obs.interacted {
@@ -522,9 +527,9 @@ impl Learner {
         }
         let mut record = Interaction {
             t,
-            u_h: self.u_h.clone(),
+            u_h: self.correction.u_h.clone(),
             delta_phi: Vec::new(),
-            weights: self.weights.clone(),
+            weights: self.estimate.weights.clone(),
             moved: 0,
             update: None,
             replan: None,
@@ -532,9 +537,12 @@ impl Learner {
             covariance: Vec::new(),
         };
         if self.params.learning {
-            if self.learn(t, &mut record)? {
-                match self.replanner {
-                    Replanner::Inline(_) => {
+            record.moved = self.deform(t)?;
+            if record.moved > 0 {
+                match &mut self.replanner {
+                    Replanner::Inline { learning, .. } => {
+                        let learned = learning.learn(&self.correction)?;
+                        self.estimate.take(&mut record, learned);
                         let (info, adopted) = self.replan_inline(t)?;
                         record.replan = Some(info);
                         obs.replanned = true;
@@ -582,76 +590,38 @@ impl Learner {
         Ok(())
     }
 
-    /// ξ_R as the robot tracks it now, at the plan's waypoint times, into `tracked_plan`: the
+    /// ξ_R as the robot tracks it now, at the plan's waypoint times, into `correction`: the
     /// plan's waypoints, or while a switch to it is still blending, the blended reference.
     fn track(&mut self) {
         let n = self.plan.dof();
         if self.plan.blend_end() == 0.0 {
-            self.tracked_plan.copy_from_slice(self.plan.waypoints());
+            self.correction.tracked.copy_from_slice(self.plan.waypoints());
             return;
         }
         let dt = self.plan.dt();
         let (qd, qdd) = self.rates.split_at_mut(n);
-        for (i, q) in self.tracked_plan.chunks_exact_mut(n).enumerate() {
+        for (i, q) in self.correction.tracked.chunks_exact_mut(n).enumerate() {
             self.plan.sample(i as f64 * dt, q, qd, qdd);
         }
     }
 
-    /// Deforms the tracked plan by the push and updates the weights; returns whether it did
-    /// (false: the push was too close to the goal to deform anything).
-    fn learn(&mut self, t: f64, record: &mut Interaction) -> Result<bool> {
+    /// Deforms the tracked plan by the push (into `correction`, with the deformation of a unit
+    /// push for its sensitivity); returns the waypoints it moved (0: the push was too close to the
+    /// goal to deform anything).
+    fn deform(&mut self, t: f64) -> Result<usize> {
         let n = self.plan.dof();
         let index = self.plan.index_at(t);
         // The push deforms the trajectory the arm is following (Algorithm 1's ξ_R^t).
         self.track();
-        self.deformed.copy_from_slice(&self.tracked_plan);
-        record.moved = self.deformation.deform_in_place(&mut self.deformed, n, index, &self.u_h)?;
-        if record.moved == 0 {
-            return Ok(false);
+        let c = &mut self.correction;
+        c.deformed.copy_from_slice(&c.tracked);
+        let moved = self.deformation.deform_in_place(&mut c.deformed, n, index, &c.u_h)?;
+        if moved > 0 {
+            // Unit torque on every joint moves joint j of waypoint i by shape[i][j] = μ·H_i.
+            c.shape.fill(0.0);
+            self.deformation.deform_in_place(&mut c.shape, n, index, &self.ones)?;
         }
-        // Φ(ξ_R) with its gradient, for the push's sensitivity (the belief, β̂, the relevance).
-        self.features.phi_gradient(&self.tracked_plan, &mut self.phi_r, &mut self.jacobian)?;
-        self.features.phi(&self.deformed, &mut self.phi_h)?;
-        for k in 0..self.delta_phi.len() {
-            self.delta_phi[k] = self.phi_h[k] - self.phi_r[k];
-        }
-        if self.delta_phi.iter().any(|v| !v.is_finite()) {
-            return Err(PhriError::invalid(
-                "tau_measured",
-                "is so large that the deformed trajectory's features overflow (non-finite)",
-            ));
-        }
-        self.compute_sensitivity(index)?;
-        // β̂ looks at the whole push: the detector's thresholds zero the joints it barely loads,
-        // which would hide how well the features explain it.
-        let rationality = rationality(&self.sensitivity, &self.explaining, &self.push)?;
-        let relevance = match self.update.params().rule {
-            UpdateRule::Confidence => {
-                relevance(&self.delta_phi, &self.sensitivity, &self.u_h, &mut self.relevance)?;
-                Some(&self.relevance[..])
-            }
-            UpdateRule::Beta => {
-                self.relevance.fill(rationality.step_scale());
-                Some(&self.relevance[..])
-            }
-            _ => None,
-        };
-        // Everything that may refuse the push does so before anything changes.
-        let evidence = self.belief.evidence(&self.sensitivity, n)?;
-        let info = self.update.apply(&mut self.weights, &self.delta_phi, relevance)?;
-        self.belief.accept(evidence);
-        self.refresh_plan_weights();
-        record.delta_phi = self.delta_phi.clone();
-        record.weights = self.weights.clone();
-        record.update = Some(info);
-        record.rationality = Some(rationality);
-        record.covariance = self.belief.covariance().to_vec();
-        Ok(true)
-    }
-
-    /// `plan_weights` from the estimate and the belief.
-    fn refresh_plan_weights(&mut self) {
-        planning_weights(&self.params.risk, &self.update, &self.belief, &self.weights, &mut self.plan_weights);
+        Ok(moved)
     }
 
     /// Inline: replans over [0, T] from the original start, warm-started from the current plan
@@ -660,10 +630,10 @@ impl Learner {
     /// the robot keeps tracking its plan (the last feasible one) and the history records why.
     /// Returns the solve's info and whether the plan was adopted.
     fn replan_inline(&mut self, t: f64) -> Result<(TrajoptInfo, bool)> {
-        let Replanner::Inline(planner) = &mut self.replanner else {
+        let Replanner::Inline { planner, .. } = &mut self.replanner else {
             return Err(PhriError::invalid("replan_latency", "replans on its worker, not inline"));
         };
-        let info = match planner.solve(&self.plan_weights) {
+        let info = match planner.solve(&self.estimate.plan_weights) {
             Ok(info) => info,
             Err(e) => {
                 // The arm keeps its plan; later replans start again from it.
@@ -698,23 +668,25 @@ impl Learner {
         Ok((info, true))
     }
 
-    /// Worker: hands the replan for the updated weights to the worker (superseding one still
-    /// under way). The history makes room for its outcome now, so that adopting it allocates
-    /// nothing.
+    /// Worker: hands the correction to the worker, which learns from it and replans (superseding
+    /// a replan still under way). The history makes room for its outcome now, so that adopting
+    /// it allocates nothing.
     fn request(&mut self, t: f64) {
         let Replanner::Worker(worker) = &mut self.replanner else { return };
         let block = self.params.replan_latency != ReplanLatency::WallClock;
-        let generation = worker.request(&self.plan_weights, self.tracked, block);
+        let record = self.history.interactions.len();
+        let generation = worker.request(&self.correction, record, self.tracked, block);
         if self.pending.is_some() {
             self.superseded += 1;
         }
-        self.pending = Some(Pending { generation, t, record: self.history.interactions.len() });
+        self.pending = Some(Pending { generation, t, record });
         self.history.plans.reserve(1);
         self.history.rejected.reserve(1);
     }
 
-    /// Worker: adopts (or rejects) the pending replan if it is due (simulated latency: waiting for
-    /// the worker if need be) or ready (wall clock), blending in from the reference at `anchor`.
+    /// Worker: takes in what the worker learned from the corrections so far, and adopts (or
+    /// rejects) the pending replan if it is due (simulated latency: waiting for the worker if need
+    /// be) or ready (wall clock), blending in from the reference at `anchor`.
     fn collect(&mut self, t: f64, anchor: f64, obs: &mut Observation) -> Result<()> {
         let (Some(pending), Replanner::Worker(worker)) = (self.pending, &mut self.replanner) else { return Ok(()) };
         let outcome = match self.params.replan_latency {
@@ -727,11 +699,13 @@ impl Learner {
             }
             ReplanLatency::WallClock => worker.collect(pending.generation, false),
         };
-        let Some(outcome) = outcome else { return Ok(()) };
+        // What was learned comes first: the replan was for the weights it gave.
+        let learning_failed = self.take_taught();
+        let Some(outcome) = outcome else { return learning_failed };
         self.pending = None;
-        obs.replanned = true;
         match outcome {
             Outcome::Feasible { plan, info } => {
+                obs.replanned = true;
                 // If the switch fails, the learner keeps the plan it is following.
                 if let Err(e) = self.plan.switch_to(&plan, anchor, &self.speed_limits) {
                     self.history.rejected.push(RejectedPlan { t: anchor, reason: e.to_string() });
@@ -744,50 +718,49 @@ impl Learner {
                 obs.adopted = true;
             }
             Outcome::Infeasible { info, reason } => {
+                obs.replanned = true;
                 self.history.interactions[pending.record].replan = Some(info);
                 self.history.rejected.push(RejectedPlan { t: anchor, reason });
             }
             // A feature that failed on the worker (e.g. a Python feature that raised) rejects that
             // replan only: the arm keeps its plan and the history says why.
             Outcome::Failed(e @ PhriError::Feature { .. }) => {
+                obs.replanned = true;
                 self.history.rejected.push(RejectedPlan { t: anchor, reason: format!("replan failed: {e}") });
             }
             Outcome::Failed(e) => {
+                obs.replanned = true;
                 self.history.rejected.push(RejectedPlan { t: anchor, reason: e.to_string() });
                 return Err(e);
             }
+            // The newest correction taught nothing (its learning failed, reported by
+            // `take_taught`): there was no replan.
+            Outcome::Unlearned => {}
         }
-        Ok(())
+        learning_failed
     }
 
-    /// Linearised sensitivity S = ∂ΔΦ/∂u_H (K × n) of a push at waypoint `index`, from the
-    /// gradient of Φ at the tracked plan (in `jacobian`).
-    fn compute_sensitivity(&mut self, index: usize) -> Result<()> {
-        let (n, m, k_len) = (self.plan.dof(), self.plan.len(), self.features.len());
-        // Unit torque on every joint moves joint j of waypoint i by shape[i][j] = μ·H_i.
-        self.shape.fill(0.0);
-        self.deformation.deform_in_place(&mut self.shape, n, index, &self.ones)?;
-        self.sensitivity.fill(0.0);
-        for k in 0..k_len {
-            for i in 0..m {
-                for j in 0..n {
-                    self.sensitivity[k * n + j] += self.jacobian[(k * m + i) * n + j] * self.shape[i * n + j];
+    /// Worker: takes in the corrections the worker has learned from (handed over by
+    /// `ReplanWorker::collect`) into their records and the estimate. A correction whose learning
+    /// failed changed nothing: a feature's failure (e.g. a Python feature that raised) is recorded
+    /// as a rejected replan, any other error is returned (the first), as an inline learner's
+    /// `observe` would have.
+    fn take_taught(&mut self) -> Result<()> {
+        let Replanner::Worker(worker) = &mut self.replanner else { return Ok(()) };
+        let mut first_error = None;
+        for taught in worker.taught() {
+            match taught.learned {
+                Ok(learned) => self.estimate.take(&mut self.history.interactions[taught.record], learned),
+                Err(e @ PhriError::Feature { .. }) => {
+                    let t = self.history.interactions[taught.record].t;
+                    self.history.rejected.push(RejectedPlan { t, reason: format!("learning failed: {e}") });
+                }
+                Err(e) => {
+                    first_error.get_or_insert(e);
                 }
             }
         }
-        Ok(())
-    }
-}
-
-/// The weights to plan with: `weights`, or with a `risk` vector w + k ⊙ σ clipped to the bounds.
-/// `plan` (K,) receives the weights.
-fn planning_weights(risk: &[f64], update: &WeightUpdate, belief: &Belief, weights: &[f64], plan: &mut [f64]) {
-    plan.copy_from_slice(weights);
-    if !risk.is_empty() {
-        for (i, w) in plan.iter_mut().enumerate() {
-            *w += risk[i] * belief.std_of(i);
-        }
-        update.clip(plan);
+        first_error.map_or(Ok(()), Err)
     }
 }
 

@@ -1,14 +1,17 @@
-//! The replan worker: a thread that owns the [`Planner`] (the optimiser, the seed plans and the
-//! warm start) and solves the newest correction's replan while the control thread keeps ticking.
+//! The replan worker: a thread that owns the learning (the weights, the belief and the update
+//! rule, [`Learning`]) and the [`Planner`] (the optimiser, the seed plans and the warm start). It
+//! learns from every correction in the order they came and solves the newest one's replan while
+//! the control thread keeps ticking: the control tick only detects and deforms.
 //!
-//! Handover is by two single-slot mailboxes, each a mutex held only to copy a few hundred numbers:
-//! the control side posts a request (generation, the generation of the plan it tracks, the new
-//! weights) and collects the result for the newest generation. In hardware mode it only
-//! `try_lock`s them (a busy slot is tried again at the next tick), so a tick never waits on the
-//! worker; in simulated mode it may wait, which is the point there. Posting bumps the shared
-//! generation counter first, which cancels a solve still running for an older request at its
-//! next Newton iteration ([`Cancellation`]); the worker posts only results that are still the
-//! newest. The worker allocates each result's plan, so that adopting it allocates nothing on the
+//! Handover is by two mailboxes, each a mutex held only to move a few buffers: the control side
+//! queues corrections (each with its generation and its record, the generation of the plan it
+//! tracks) and collects what the worker learned from them and the replan result for the newest
+//! generation. In hardware mode it only `try_lock`s them (a busy slot is tried again at the next
+//! tick), so a tick never waits on the worker; in simulated mode it may wait, which is the point
+//! there. Posting bumps the shared generation counter first, which cancels a solve still running
+//! for an older request at its next Newton iteration ([`Cancellation`]); the worker posts only
+//! results that are still the newest, but what it learned from every correction. The worker
+//! allocates each result's plan and records, so that taking them in allocates nothing on the
 //! control thread.
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -17,6 +20,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard, TryLockError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use super::learning::{Correction, Learned, Learning};
 use super::planner::Planner;
 use crate::error::{PhriError, Result};
 use crate::trajopt::{Cancellation, PlanLevels, TrajoptInfo};
@@ -33,6 +37,15 @@ const LIVENESS_CHECK: Duration = Duration::from_millis(20);
 /// A stalled worker (test hook) checks this often whether it is being shut down.
 const STALL_STEP: Duration = Duration::from_millis(5);
 
+/// Corrections the request slot and each side's queue hold. A new correction stops a running
+/// solve at its next Newton iteration, and the worker then takes the slot's: only a worker held up
+/// (a stall, the machine) for more than 2 × QUEUE sample periods fills both. Then a simulated-mode
+/// tick waits for it, and a hardware-mode tick grows its queue instead.
+pub(super) const QUEUE: usize = 16;
+
+/// While the slot is full, how long a simulated-mode request waits before it looks again.
+const QUEUE_WAIT: Duration = Duration::from_micros(20);
+
 /// A spinning worker looks at the clock (and yields its core once) every this many checks for a
 /// request.
 const SPINS_PER_CLOCK: u32 = 256;
@@ -46,30 +59,78 @@ pub(super) enum Outcome {
     Infeasible { info: TrajoptInfo, reason: String },
     /// The solve failed with an error, or the worker panicked ([`PhriError::ReplanWorker`]).
     Failed(PhriError),
+    /// The newest correction's learning failed (its [`Taught`] says why): no replan.
+    Unlearned,
 }
 
-/// A replan request.
+/// What the worker learned from one correction.
+#[derive(Debug)]
+pub(super) struct Taught {
+    /// The correction's record in `History::interactions`.
+    pub(super) record: usize,
+    pub(super) learned: Result<Learned>,
+}
+
+/// A correction waiting for the worker.
+#[derive(Debug, Clone)]
+struct Queued {
+    correction: Correction,
+    generation: u64,
+    record: usize,
+}
+
+/// Corrections for the worker, oldest first, in buffers sized once.
 #[derive(Debug, Clone)]
 struct Request {
-    /// Its generation (1, 2, ...; 0 is the initial plan).
+    /// Generation of the newest correction in or through the slot (1, 2, ...; 0 is the initial
+    /// plan); a reset moves it on too.
     generation: u64,
-    /// Generation of the plan the robot tracks when it was made: the warm start.
+    /// Generation of the plan the robot tracks when the newest was made: the warm start.
     base: u64,
-    weights: Vec<f64>,
+    /// Resets so far: the worker starts its learning again when it sees a new one.
+    epoch: u64,
+    /// `queue[..queued]` wait, oldest first; the rest are spare buffers.
+    queue: Vec<Queued>,
+    queued: usize,
 }
 
-/// The result slot: the outcome of request `generation`, until collected.
+impl Request {
+    fn new(m: usize, n: usize) -> Self {
+        let spare = Queued { correction: Correction::new(m, n), generation: 0, record: 0 };
+        Request { generation: 0, base: 0, epoch: 0, queue: vec![spare; QUEUE], queued: 0 }
+    }
+
+    /// Moves as many of `from`'s queued corrections as fit to the end of this one's (buffers are
+    /// swapped, not copied); returns how many.
+    fn take_from(&mut self, from: &mut Request) -> usize {
+        let moved = from.queued.min(self.queue.len() - self.queued);
+        for i in 0..moved {
+            std::mem::swap(&mut self.queue[self.queued + i], &mut from.queue[i]);
+        }
+        self.queued += moved;
+        // The rest move to the front, oldest first.
+        from.queue.rotate_left(moved);
+        from.queued -= moved;
+        moved
+    }
+}
+
+/// The result slot: the outcome of request `generation`, until collected, and what the worker
+/// learned from the corrections since the last collection.
 struct Posted {
     generation: u64,
     outcome: Option<Outcome>,
+    /// The epoch the control side is in: the worker posts nothing learned in another.
+    epoch: u64,
+    taught: Vec<Taught>,
 }
 
 /// What the control side and the worker share.
 struct Shared {
     /// Generation of the newest request: a solve of any other stops ([`Cancellation`]).
     latest: Arc<AtomicU64>,
-    /// Generation of the request in the request slot, stored once the slot holds it: what a
-    /// spinning worker watches.
+    /// Generation of the newest correction delivered to the request slot (or of a reset), stored
+    /// once the slot holds it: what a spinning worker watches.
     delivered: AtomicU64,
     request: Mutex<Request>,
     result: Mutex<Posted>,
@@ -100,97 +161,148 @@ fn try_lock<T>(m: &Mutex<T>) -> Option<MutexGuard<'_, T>> {
 pub(super) struct ReplanWorker {
     shared: Arc<Shared>,
     thread: Option<JoinHandle<()>>,
-    /// Generation of the last request posted (or cancelled).
+    /// Generation of the last correction posted (or of the last reset).
     posted: u64,
-    /// The newest request, until the request slot has taken it (hardware mode: the slot may be
-    /// busy at one tick).
+    /// Resets so far.
+    epoch: u64,
+    /// Corrections the request slot has not taken yet (hardware mode: the slot may be busy at a
+    /// tick).
     outbox: Request,
-    undelivered: bool,
+    /// What the worker learned, collected and not yet taken in by the learner.
+    taught: Vec<Taught>,
 }
 
 impl ReplanWorker {
-    /// Starts the worker with `planner` (whose warm start is the initial plan, generation 0), for
-    /// `k` weights; it busy-waits `spin` for each next request before it sleeps
-    /// (`LearnerParams::worker_spin`).
-    pub(super) fn spawn(planner: Planner, k: usize, spin: Duration) -> Result<Self> {
-        let request = Request { generation: 0, base: 0, weights: vec![0.0; k] };
+    /// Starts the worker with `learning` and `planner` (whose warm start is the initial plan,
+    /// generation 0); `shape` sizes the corrections' buffers. It busy-waits `spin` for each next
+    /// request before it sleeps (`LearnerParams::worker_spin`).
+    pub(super) fn spawn(planner: Planner, learning: Learning, shape: Correction, spin: Duration) -> Result<Self> {
+        let n = shape.u_h.len();
+        let m = shape.tracked.len() / n.max(1);
         let shared = Arc::new(Shared {
             latest: Arc::new(AtomicU64::new(0)),
             delivered: AtomicU64::new(0),
-            request: Mutex::new(request.clone()),
-            result: Mutex::new(Posted { generation: 0, outcome: None }),
+            request: Mutex::new(Request::new(m, n)),
+            result: Mutex::new(Posted { generation: 0, outcome: None, epoch: 0, taught: Vec::with_capacity(QUEUE) }),
             posted: Condvar::new(),
             shutdown: AtomicBool::new(false),
             stall_nanos: AtomicU64::new(0),
             panic_next: AtomicBool::new(false),
         });
-        let worker = Worker::new(shared.clone(), planner, k, spin);
+        let worker = Worker::new(shared.clone(), planner, learning, Request::new(m, n), spin);
         let thread = std::thread::Builder::new()
             .name("phri-replan".into())
             .spawn(move || worker.run())
             .map_err(|e| PhriError::ReplanWorker { reason: format!("the replan worker thread could not start: {e}") })?;
-        Ok(ReplanWorker { shared, thread: Some(thread), posted: 0, outbox: request, undelivered: false })
+        Ok(ReplanWorker {
+            shared,
+            thread: Some(thread),
+            posted: 0,
+            epoch: 0,
+            outbox: Request::new(m, n),
+            taught: Vec::with_capacity(QUEUE),
+        })
     }
 
-    /// Posts a replan for `weights` warm-started from the plan of generation `base` (the one the
-    /// robot tracks) and returns its generation. A solve still running for an older request stops.
-    /// With `block` false it never waits: if the slot is busy, the request goes out at a later
-    /// call. Allocates nothing.
-    pub(super) fn request(&mut self, weights: &[f64], base: u64, block: bool) -> u64 {
+    /// Queues `correction` (its record `record`) for the worker, which learns from it and replans
+    /// for the weights it gives warm-started from the plan of generation `base` (the one the robot
+    /// tracks), and returns its generation. A solve still running for an older correction stops.
+    /// With `block` false it never waits: corrections the slot has no room for go out at a later
+    /// call. Allocates nothing unless more than [`QUEUE`] corrections wait on this side.
+    pub(super) fn request(&mut self, correction: &Correction, record: usize, base: u64, block: bool) -> u64 {
+        if self.outbox.queued == self.outbox.queue.len() {
+            if block {
+                self.deliver(true);
+            } else {
+                // A worker held up for [`QUEUE`] samples and more: the queue grows (one allocation)
+                // rather than the tick waits (it may hold what the worker needs, e.g. the GIL).
+                let spare = self.outbox.queue[0].clone();
+                self.outbox.queue.push(spare);
+            }
+        }
         self.posted += 1;
         self.shared.latest.store(self.posted, Ordering::Release);
-        self.outbox.generation = self.posted;
+        let queued = &mut self.outbox.queue[self.outbox.queued];
+        queued.correction.copy_from(correction);
+        queued.generation = self.posted;
+        queued.record = record;
+        self.outbox.queued += 1;
         self.outbox.base = base;
-        self.outbox.weights.copy_from_slice(weights);
-        self.undelivered = true;
         self.deliver(block);
         self.posted
     }
 
-    /// Cancels whatever the worker is solving: no result of a request made so far will be
-    /// collected.
+    /// Cancels whatever the worker is doing, and the corrections it has not learned from yet: no
+    /// result of a request made so far will be collected, and the worker starts its learning
+    /// again (`Learner::reset`). Waits for the slots.
     pub(super) fn cancel(&mut self) {
         self.posted += 1;
+        self.epoch += 1;
         self.shared.latest.store(self.posted, Ordering::Release);
-        self.undelivered = false;
-    }
-
-    /// Hands the outbox to the worker if it has not taken it yet.
-    fn deliver(&mut self, block: bool) {
-        if !self.undelivered {
-            return;
-        }
-        let slot = if block { Some(lock(&self.shared.request)) } else { try_lock(&self.shared.request) };
-        let Some(mut slot) = slot else { return };
-        slot.generation = self.outbox.generation;
-        slot.base = self.outbox.base;
-        slot.weights.copy_from_slice(&self.outbox.weights);
+        self.outbox.queued = 0;
+        self.taught.clear();
+        let mut result = lock(&self.shared.result);
+        result.epoch = self.epoch;
+        result.outcome = None;
+        result.taught.clear();
+        drop(result);
+        let mut slot = lock(&self.shared.request);
+        slot.queued = 0;
+        slot.generation = self.posted;
+        slot.epoch = self.epoch;
         drop(slot);
-        self.shared.delivered.store(self.outbox.generation, Ordering::Release);
-        self.undelivered = false;
+        self.shared.delivered.store(self.posted, Ordering::Release);
         if let Some(thread) = &self.thread {
             thread.thread().unpark();
         }
     }
 
+    /// Hands the outbox's corrections to the worker, as many as the slot has room for; with
+    /// `block`, waits until it has taken them all (or has stopped).
+    fn deliver(&mut self, block: bool) {
+        while self.outbox.queued > 0 {
+            let slot = if block { Some(lock(&self.shared.request)) } else { try_lock(&self.shared.request) };
+            let Some(mut slot) = slot else { return };
+            if slot.take_from(&mut self.outbox) > 0 {
+                slot.generation = slot.queue[slot.queued - 1].generation;
+                slot.base = self.outbox.base;
+                let generation = slot.generation;
+                drop(slot);
+                self.shared.delivered.store(generation, Ordering::Release);
+                if let Some(thread) = &self.thread {
+                    thread.thread().unpark();
+                }
+            } else {
+                drop(slot);
+            }
+            if self.outbox.queued == 0 || !block || self.thread.as_ref().is_none_or(JoinHandle::is_finished) {
+                return;
+            }
+            // The slot is full: the worker takes its corrections at its next look.
+            std::thread::sleep(QUEUE_WAIT);
+        }
+    }
+
     /// The outcome of request `generation` if the worker has posted it (taken out of the slot),
-    /// or with `block` once it has; a worker that stopped gives [`Outcome::Failed`]. Without
-    /// `block` it never waits. Allocates nothing.
+    /// or with `block` once it has; a worker that stopped gives [`Outcome::Failed`]. What the
+    /// worker has learned by then is kept for [`ReplanWorker::taught`] (with the outcome, at
+    /// least everything up to `generation`). Without `block` it never waits. Allocates nothing.
     pub(super) fn collect(&mut self, generation: u64, block: bool) -> Option<Outcome> {
         self.deliver(block);
         let slot = if block { Some(lock(&self.shared.result)) } else { try_lock(&self.shared.result) };
         let mut slot = slot?;
         loop {
-            if slot.generation == generation {
-                if let Some(outcome) = slot.outcome.take() {
-                    return Some(outcome);
-                }
+            if slot.generation == generation && slot.outcome.is_some() {
+                take_taught(&mut slot.taught, &mut self.taught);
+                return slot.outcome.take();
             }
             if self.thread.as_ref().is_none_or(JoinHandle::is_finished) {
+                take_taught(&mut slot.taught, &mut self.taught);
                 let reason = "the replan worker thread stopped; the arm keeps its plan".to_string();
                 return Some(Outcome::Failed(PhriError::ReplanWorker { reason }));
             }
             if !block {
+                take_taught(&mut slot.taught, &mut self.taught);
                 return None;
             }
             slot = match self.shared.posted.wait_timeout(slot, LIVENESS_CHECK) {
@@ -198,6 +310,11 @@ impl ReplanWorker {
                 Err(e) => e.into_inner().0,
             };
         }
+    }
+
+    /// What the worker learned, as far as collected, oldest first (drained).
+    pub(super) fn taught(&mut self) -> std::vec::Drain<'_, Taught> {
+        self.taught.drain(..)
     }
 
     /// Test hook: the worker's next solve first stalls for `duration`.
@@ -208,6 +325,16 @@ impl ReplanWorker {
     /// Test hook: the worker's next solve panics.
     pub(super) fn panic_next(&self) {
         self.shared.panic_next.store(true, Ordering::Release);
+    }
+}
+
+/// Moves what the worker posted to the control side's list (the lists' buffers are swapped when
+/// that is empty, so nothing is allocated there).
+fn take_taught(posted: &mut Vec<Taught>, taken: &mut Vec<Taught>) {
+    if taken.is_empty() {
+        std::mem::swap(posted, taken);
+    } else {
+        taken.append(posted);
     }
 }
 
@@ -234,22 +361,26 @@ impl Drop for ReplanWorker {
 /// The worker thread's state.
 struct Worker {
     shared: Arc<Shared>,
+    learning: Learning,
     planner: Planner,
+    /// The corrections taken from the slot, to learn from.
+    inbox: Request,
+    /// The epoch `learning` is in.
+    epoch: u64,
     /// The last feasible result, until the control side adopts it (`Request::base` says so) or a
     /// newer one replaces it, and its generation.
     candidate: PlanLevels,
     candidate_generation: Option<u64>,
     /// Generation of the plan in `planner.levels` (the warm start).
     levels_generation: u64,
-    weights: Vec<f64>,
     /// How long to busy-wait for a request before sleeping.
     spin: Duration,
 }
 
 impl Worker {
-    fn new(shared: Arc<Shared>, planner: Planner, k: usize, spin: Duration) -> Self {
+    fn new(shared: Arc<Shared>, planner: Planner, learning: Learning, inbox: Request, spin: Duration) -> Self {
         let candidate = planner.levels.clone();
-        Worker { shared, planner, candidate, candidate_generation: None, levels_generation: 0, weights: vec![0.0; k], spin }
+        Worker { shared, learning, planner, inbox, epoch: 0, candidate, candidate_generation: None, levels_generation: 0, spin }
     }
 
     /// Waits for a request newer than `taken`: busy until `spin` after `idle_since` (the end of
@@ -280,40 +411,43 @@ impl Worker {
         let mut idle_since = Instant::now();
         while !self.shared.shutdown.load(Ordering::Acquire) {
             let job = {
-                let slot = lock(&self.shared.request);
+                let mut slot = lock(&self.shared.request);
                 (slot.generation > taken).then(|| {
-                    self.weights.copy_from_slice(&slot.weights);
-                    (slot.generation, slot.base)
+                    self.inbox.queued = 0;
+                    self.inbox.take_from(&mut slot);
+                    (slot.generation, slot.base, slot.epoch)
                 })
             };
-            let Some((generation, base)) = job else {
+            let Some((generation, base, epoch)) = job else {
                 self.wait(taken, idle_since);
                 continue;
             };
             taken = generation;
             idle_since = Instant::now();
+            if epoch != self.epoch {
+                // The control side reset: the corrections from now on start from the prior.
+                self.learning.reset();
+                self.epoch = epoch;
+            }
+            let Some(learned) = self.learn(epoch) else { continue };
             if self.shared.latest.load(Ordering::Acquire) != generation {
                 continue; // superseded before it started
             }
-            let outcome = match catch_unwind(AssertUnwindSafe(|| self.solve(generation, base))) {
-                Ok(outcome) => outcome,
-                Err(payload) => {
-                    let message = payload
-                        .downcast_ref::<&str>()
-                        .map(|s| s.to_string())
-                        .or_else(|| payload.downcast_ref::<String>().cloned())
-                        .unwrap_or_else(|| "no message".into());
+            let outcome = if !learned {
+                Some(Outcome::Unlearned)
+            } else {
+                match catch_unwind(AssertUnwindSafe(|| self.solve(generation, base))) {
+                    Ok(outcome) => outcome,
                     // A panic inside the solve leaves `levels` and `candidate` as they were (it
                     // writes only `replanned`); the next request starts from them as usual.
-                    let reason = format!("the replan worker panicked (a bug in phri; please report it): {message}");
-                    Some(Outcome::Failed(PhriError::ReplanWorker { reason }))
+                    Err(payload) => Some(Outcome::Failed(panicked(payload.as_ref()))),
                 }
             };
             let Some(outcome) = outcome else { continue };
-            if self.shared.latest.load(Ordering::Acquire) != generation {
+            let mut slot = lock(&self.shared.result);
+            if self.shared.latest.load(Ordering::Acquire) != generation || slot.epoch != epoch {
                 continue; // superseded meanwhile: only the newest result can be adopted
             }
-            let mut slot = lock(&self.shared.result);
             slot.generation = generation;
             slot.outcome = Some(outcome);
             drop(slot);
@@ -327,13 +461,37 @@ impl Worker {
         }
     }
 
+    /// Learns from the corrections taken (in order) and posts what it learned; returns whether
+    /// the newest one taught anything, or None if none were taken (a reset).
+    fn learn(&mut self, epoch: u64) -> Option<bool> {
+        let count = self.inbox.queued;
+        if count == 0 {
+            return None;
+        }
+        let mut taught = Vec::with_capacity(count);
+        for queued in &self.inbox.queue[..count] {
+            let learning = &mut self.learning;
+            let learned = catch_unwind(AssertUnwindSafe(|| learning.learn(&queued.correction)))
+                .unwrap_or_else(|payload| Err(panicked(payload.as_ref())));
+            taught.push(Taught { record: queued.record, learned });
+        }
+        self.inbox.queued = 0;
+        let newest = taught.last().is_some_and(|t| t.learned.is_ok());
+        let mut slot = lock(&self.shared.result);
+        if slot.epoch == epoch {
+            slot.taught.append(&mut taught);
+        }
+        drop(slot);
+        Some(newest)
+    }
+
     /// Solves request `generation` warm-started from the plan of generation `base`; `None` if it
     /// was superseded before the end.
     fn solve(&mut self, generation: u64, base: u64) -> Option<Outcome> {
         self.rebase(base);
         self.inject_faults();
         self.planner.set_cancellation(Some(Cancellation::new(self.shared.latest.clone(), generation)));
-        let result = self.planner.solve(&self.weights);
+        let result = self.planner.solve(self.learning.plan_weights());
         if self.shared.latest.load(Ordering::Acquire) != generation {
             return None;
         }
@@ -365,7 +523,8 @@ impl Worker {
         self.levels_generation = base;
     }
 
-    /// The test hooks: a stall (cut short by shutdown), then a panic.
+    /// The test hooks: a stall (cut short by shutdown), then a panic. (The panic is in the solve:
+    /// a learn that panics is caught the same way.)
     fn inject_faults(&self) {
         let stall = Duration::from_nanos(self.shared.stall_nanos.swap(0, Ordering::AcqRel));
         let began = Instant::now();
@@ -376,4 +535,14 @@ impl Worker {
             panic!("injected by Learner::debug_panic_worker");
         }
     }
+}
+
+/// The error for a panic on the worker, with its message.
+fn panicked(payload: &(dyn std::any::Any + Send)) -> PhriError {
+    let message = payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "no message".into());
+    PhriError::ReplanWorker { reason: format!("the replan worker panicked (a bug in phri; please report it): {message}") }
 }

@@ -9,7 +9,8 @@
 //! Replans on the worker thread (`LearnerParams::replan_latency` = wall clock, the hardware mode):
 //! from a push's sample to the adopted new plan ≤ 5 ms at p99 on each of the four study tasks
 //! (issue 14), with the study's planner (`phri_benches::study_learner`); alongside, the control
-//! side's own share: the `observe` that takes the push (detect, deform, update, hand-over), and a
+//! side's own share: the `observe` that takes the push (detect, deform, hand-over; the worker
+//! learns from it), and a
 //! quiet `observe` (no push, nothing to adopt), which must stay microseconds.
 //!
 //! Criterion reports averages over batches, so after the criterion groups this binary times 10^6

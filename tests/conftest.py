@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.resources
+import importlib.util
 import os
 import subprocess
 import sys
@@ -13,6 +14,7 @@ import textwrap
 os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import ModuleType
 from typing import NamedTuple
 
 import numpy as np
@@ -31,6 +33,18 @@ def jaco2_urdf_path() -> Path:
     path = Path(str(resource))
     assert path.is_file(), f"shipped URDF not found at {path}"
     return path
+
+
+def load_bench(name: str) -> ModuleType:
+    """benches/<name>.py as a module (benches are scripts, not a package), for the tests that run
+    a bench's own code on a small problem or share its definitions."""
+    path = Path(__file__).resolve().parents[1] / "benches" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while it loads
+    spec.loader.exec_module(module)
+    return module
 
 
 def random_configurations(

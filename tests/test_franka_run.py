@@ -24,6 +24,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import load_bench
 from fake_arm import FakeArm
 
 import phri
@@ -678,13 +679,7 @@ def test_the_push_to_adoption_bench_runs_and_times_every_task(
 ) -> None:
     """benches/push_adoption.py (make bench-push) on one sequence: every FR3 task replans after a
     push in each of the three settings and gets a row of finite times, so the bench does not rot."""
-    import importlib.util
-
-    path = Path(__file__).resolve().parents[1] / "benches" / "push_adoption.py"
-    spec = importlib.util.spec_from_file_location("push_adoption", path)
-    assert spec is not None and spec.loader is not None
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_bench("push_adoption")
     monkeypatch.setattr(sys, "argv", ["push_adoption.py", "--sequences", "1"])
     bench.main()
     out = capsys.readouterr().out

@@ -7,10 +7,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from types import ModuleType, SimpleNamespace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import load_bench
 
 import phri
 from phri.config import FeatureSpec
@@ -553,18 +554,6 @@ def test_a_missing_population_file_is_a_clear_error(tmp_path: Path) -> None:
     assert isinstance(default_population(), Population)
 
 
-def _two_features_bench() -> ModuleType:
-    """benches/two_features.py as a module (benches are scripts, not a package)."""
-    import importlib.util
-
-    path = Path(__file__).resolve().parents[1] / "benches" / "two_features.py"
-    spec = importlib.util.spec_from_file_location("two_features", path)
-    assert spec is not None and spec.loader is not None
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    return bench
-
-
 def test_the_two_feature_bench_runs_and_decomposes(capsys, monkeypatch) -> None:
     """benches/two_features.py on one person and seed, so the bench behind docs/participant.md's
     two-feature measurements does not rot: it prints the initial plan's errors, plans with the tilt
@@ -573,7 +562,7 @@ def test_the_two_feature_bench_runs_and_decomposes(capsys, monkeypatch) -> None:
     import re
     import sys
 
-    bench = _two_features_bench()
+    bench = load_bench("two_features")
     monkeypatch.setattr(sys, "argv", ["two_features.py", "--people", "1", "--seeds", "1", "--decompose"])
     bench.main()
     out = capsys.readouterr().out
@@ -604,7 +593,7 @@ def test_a_two_feature_task_can_be_corrected_on_both_features() -> None:
     from phri.sim import EpisodeConfig, World
     from phri.sim.episode import simulate_episode
 
-    both = _two_features_bench().two_feature_task(0, base="coffee")  # the bench's task, every waypoint
+    both = load_bench("two_features").two_feature_task(0, base="coffee")  # the bench's task, every waypoint
     person = default_population().draw(0, 7)
     with World() as world:
         planner = Planner(both, world)

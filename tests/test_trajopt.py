@@ -13,14 +13,12 @@ joint limits as bounds, and compares the final costs of the same function.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_bench
 
 import phri
 from phri import exceptions as ex
@@ -30,17 +28,7 @@ TASKS = ("human", "coffee", "table", "laptop")
 CLEARANCE_TOL = 1e-3
 
 
-def _load_peers():
-    path = Path(__file__).resolve().parents[1] / "benches" / "trajopt_peers.py"
-    spec = importlib.util.spec_from_file_location("trajopt_peers", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while it loads
-    spec.loader.exec_module(module)
-    return module
-
-
-peers = _load_peers()
+peers = load_bench("trajopt_peers")
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ from importlib import resources
 
 import numpy as np
 import pytest
+from conftest import load_bench
 
 import phri
 from phri import load_task
@@ -13,15 +14,8 @@ from phri.sim import World
 from phri.sim.episode import EpisodeConfig, Planner, simulate_episode
 from phri.sim.participant import ParticipantParams
 
-LAPTOP = """
-# The person also keeps the cup away from the laptop; the robot has no feature for it.
-[unmodelled.laptop]
-true = 10.0
-keep_out = "laptop"
-radius = 0.4
-offset = [0.0, -0.1]
-samples = 4
-"""
+#: The bench's unmodelled laptop keep-out (a task file's [unmodelled.laptop] table).
+LAPTOP = load_bench("misspecified").UNMODELLED_LAPTOP
 
 
 def table_with(tmp_path, extra: str, *, table_true: float = 0.0):

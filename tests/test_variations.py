@@ -6,14 +6,11 @@ The study-sized checks run benches/variations.py's own code on 3 variations per 
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
-import sys
-from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
+from conftest import load_bench
 
 import phri
 from phri.config import TABLE
@@ -27,17 +24,6 @@ from phri.tasks import SECOND_FEATURE, vary
 JACO2 = phri.Robot.jaco2()
 #: The bench's seed for the tests (any fixed one: the checks must hold for it).
 SEED = 2026
-
-
-def _bench() -> ModuleType:
-    """benches/variations.py as a module (benches are scripts, not a package)."""
-    path = Path(__file__).resolve().parents[1] / "benches" / "variations.py"
-    spec = importlib.util.spec_from_file_location("variations", path)
-    assert spec is not None and spec.loader is not None
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = bench  # its dataclasses look their module up there
-    spec.loader.exec_module(bench)
-    return bench
 
 
 def _moved(task: phri.Task, name: str, shift: tuple[float, float, float]) -> phri.Task:
@@ -210,7 +196,7 @@ def test_off_the_paper_scenes_people_push_where_the_robot_is_wrong_and_learning_
     more than the desired behaviour by over 20 %, the person pushes in at least 80 % of impedance
     episodes; learning needs less effort and less interaction time than impedance on average in at
     least 90 % of the variations with a push; no episode ends in an error other than a safety stop."""
-    bench = _bench()
+    bench = load_bench("variations")
     outcomes = bench.run(SEED, bench.TASKS, 3, 3)
     checks = bench.check(outcomes)
     table = bench.report(outcomes, bench.TASKS)
@@ -233,7 +219,7 @@ def test_with_a_second_learned_feature_learning_needs_less_effort_and_ends_close
     person's luck (when the person's off-axis push stopped taking its direction from rounding, the
     draws changed and a variation came out 8 % the other way; over 30 variations of each task the
     bench's rate went from 93 % to 96 %, `benches/variations.py --seed 11 --second`)."""
-    bench = _bench()
+    bench = load_bench("variations")
     tasks = ("coffee", "human")
     outcomes = bench.run(SEED, tasks, 2, 6, second=True)
     table = bench.report(outcomes, tasks)

@@ -701,13 +701,15 @@ fn worker_settings_and_absurd_transition_speeds_are_refused() {
 }
 
 /// φ = z − `top` of the cup frame at each waypoint [m] (the table feature without its smoothing),
-/// counting the segments evaluated on the thread `control`.
+/// counting the segments evaluated on the thread `control`; an evaluation of a trajectory with a
+/// step of more than `fail_beyond` [rad] between waypoints fails (a feature error).
 #[derive(Clone)]
 struct WatchedHeight {
     frame: phri_core::FrameId,
     top: f64,
     control: std::thread::ThreadId,
     on_control: Arc<std::sync::atomic::AtomicUsize>,
+    fail_beyond: f64,
 }
 
 impl phri_core::features::Feature for WatchedHeight {
@@ -734,10 +736,24 @@ impl phri_core::features::Feature for WatchedHeight {
         }
         value
     }
+
+    fn prepare(&mut self, trajectory: &[f64], n: usize, _need: phri_core::features::Need) -> phri_core::Result<()> {
+        let step = trajectory.windows(n + 1).map(|w| (w[n] - w[0]).abs()).fold(0.0, f64::max);
+        if step > self.fail_beyond {
+            let reason = format!("a step of {step} rad between waypoints");
+            return Err(phri_core::PhriError::Feature { feature: "height".into(), reason });
+        }
+        Ok(())
+    }
 }
 
 /// The table task's learner with [`WatchedHeight`] for its feature, counting into `on_control`.
 fn watched_learner(params: LearnerParams, on_control: &Arc<std::sync::atomic::AtomicUsize>) -> Learner {
+    watched_learner_failing(params, on_control, f64::INFINITY)
+}
+
+/// The same, its feature failing on trajectories with steps over `fail_beyond` [rad].
+fn watched_learner_failing(params: LearnerParams, on_control: &Arc<std::sync::atomic::AtomicUsize>, fail_beyond: f64) -> Learner {
     let model = Arc::new(jaco2());
     let l7 = model.frame_id("j2s7s300_link_7").unwrap();
     let watched = WatchedHeight {
@@ -745,6 +761,7 @@ fn watched_learner(params: LearnerParams, on_control: &Arc<std::sync::atomic::At
         top: common::study::table_top(),
         control: std::thread::current().id(),
         on_control: on_control.clone(),
+        fail_beyond,
     };
     let features: Vec<Box<dyn phri_core::features::Feature>> = vec![Box::new(phri_core::features::Efficiency), Box::new(watched)];
     let fs = phri_core::features::FeatureSet::new(model, l7, features).unwrap();
@@ -835,4 +852,36 @@ fn a_worker_learns_from_every_correction_in_order_when_they_queue_up() {
     assert!(a[pushes - 1].weights[1] < 1.0, "within the bound: {:?}", a[pushes - 1].weights);
     assert_eq!(wall.weights(), fixed.weights());
     assert_eq!(wall.weights(), &a[pushes - 1].weights[..]);
+}
+
+#[test]
+fn a_correction_whose_learning_fails_on_the_worker_keeps_the_ones_before_it() {
+    // A push the worker learns from, then 0.1 s later (its replan superseded) one so large that the
+    // feature fails on the deformed plan: that one teaches nothing and is recorded, and the plan for
+    // the first one's weights is still made and adopted.
+    let on_control = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let params = LearnerParams { replan_latency: ReplanLatency::Fixed(0.5), ..Default::default() };
+    let mut l = watched_learner_failing(params, &on_control, 100.0);
+    let mut adopted = Vec::new();
+    for k in 3900..=5000 {
+        let t = k as f64 * TICK;
+        let tau = match k {
+            4000 => push(&l, t, Vector3::new(0.0, 0.0, -25.0), Vector3::zeros()),
+            4100 => push(&l, t, Vector3::new(0.0, 0.0, -25.0), Vector3::zeros()).iter().map(|v| v * 1e4).collect(),
+            _ => vec![0.0; 7],
+        };
+        if l.observe(t, &tau).unwrap().adopted {
+            adopted.push(k);
+        }
+    }
+    let h = l.history();
+    assert_eq!(h.interactions.len(), 2);
+    let (first, second) = (&h.interactions[0], &h.interactions[1]);
+    assert!(first.update.is_some() && first.weights[1] > 0.0, "{first:?}");
+    assert!(second.update.is_none() && second.moved > 0, "the second taught nothing: {second:?}");
+    assert_eq!(l.weights(), &first.weights[..]);
+    assert_eq!(h.rejected.len(), 1, "{:?}", h.rejected);
+    assert!(h.rejected[0].reason.starts_with("learning failed: ") && h.rejected[0].reason.contains("height"), "{:?}", h.rejected);
+    assert_eq!(adopted, vec![4600], "the plan for the first push's weights, due with the second");
+    assert!(second.replan.is_some());
 }

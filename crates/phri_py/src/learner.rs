@@ -49,8 +49,11 @@ use crate::update::{PyUpdateInfo, PyWeightUpdate};
 /// milliseconds on a loaded or virtual machine; spinning keeps one CPU core busy, so give the
 /// worker a core the control loop does not need.
 ///
-/// With a worker, `observe` detects, deforms and updates (microseconds) and hands the replan over;
-/// a newer push supersedes a replan still running. Adopted plans blend in from the reference at the
+/// With a worker, `observe` detects and deforms (microseconds) and hands the correction over: the
+/// worker learns from every correction in order (ΔΦ, β̂, the belief, the update), then replans for
+/// the newest weights, which `weights` and `belief()` show once taken in (with the plan, at
+/// t_push + `replan_latency`; on the wall clock, as soon as learned); a newer push supersedes a
+/// replan still running. Adopted plans blend in from the reference at the
 /// previous `observe`'s time. `observe(t, ...)` needs t in [0, duration + 0.01] s, never going back
 /// (`reset()` starts again). The learner may be shared between threads: `reference` from another
 /// thread waits for an `observe` in progress.

@@ -368,8 +368,11 @@ impl Learner {
     }
 
     /// Current weights w (cost form). With a replan worker, which learns from each correction
-    /// before it replans, they are those of the last correction whose plan was adopted or
-    /// rejected (simulated latency: at t_push + L; wall clock: as soon as the worker is done).
+    /// before it replans, they are those of the corrections taken in so far: with a simulated
+    /// latency L, every correction up to the one whose replan is due, at t_push + L (a correction
+    /// due after the last `observe` is never taken in); with the wall clock, every correction the
+    /// worker has learned from by the tick. An interaction the worker did not learn from (no
+    /// deformation, or a failed learning) records these.
     pub fn weights(&self) -> &[f64] {
         &self.estimate.weights
     }
@@ -504,7 +507,11 @@ impl Learner {
         self.last_t = Some(t);
         self.last_observation = obs;
         if self.pending.is_some() {
-            self.collect(t, anchor, &mut obs)?;
+            if let Err(e) = self.collect(t, anchor, &mut obs) {
+                // What was taken in stays (a plan adopted with an earlier correction's error).
+                self.last_observation = obs;
+                return Err(e);
+            }
         }
         // Sample instants lie on the grid k·period; a tick within 10⁻⁶ periods of one counts as on it
         // (tick times carry rounding). Missed instants are not replayed.

@@ -39,8 +39,9 @@ const STALL_STEP: Duration = Duration::from_millis(5);
 
 /// Corrections the request slot and each side's queue hold. A new correction stops a running
 /// solve at its next Newton iteration, and the worker then takes the slot's: only a worker held up
-/// (a stall, the machine) for more than 2 × QUEUE sample periods fills both. Then a simulated-mode
-/// tick waits for it, and a hardware-mode tick grows its queue instead.
+/// (a stall, the machine) for QUEUE sample periods fills the slot. Then a simulated-mode tick waits
+/// for it to take them, and a hardware-mode tick keeps them in its own queue, which grows beyond
+/// QUEUE rather than waits.
 pub(super) const QUEUE: usize = 16;
 
 /// While the slot is full, how long a simulated-mode request waits before it looks again.
@@ -59,7 +60,8 @@ pub(super) enum Outcome {
     Infeasible { info: TrajoptInfo, reason: String },
     /// The solve failed with an error, or the worker panicked ([`PhriError::ReplanWorker`]).
     Failed(PhriError),
-    /// The newest correction's learning failed (its [`Taught`] says why): no replan.
+    /// The newest correction's learning failed (its [`Taught`] says why) and the weights are
+    /// those the tracked plan was made for: no replan.
     Unlearned,
 }
 
@@ -210,18 +212,21 @@ impl ReplanWorker {
     /// With `block` false it never waits: corrections the slot has no room for go out at a later
     /// call. Allocates nothing unless more than [`QUEUE`] corrections wait on this side.
     pub(super) fn request(&mut self, correction: &Correction, record: usize, base: u64, block: bool) -> u64 {
-        if self.outbox.queued == self.outbox.queue.len() {
-            if block {
-                self.deliver(true);
-            } else {
-                // A worker held up for [`QUEUE`] samples and more: the queue grows (one allocation)
-                // rather than the tick waits (it may hold what the worker needs, e.g. the GIL).
-                let spare = self.outbox.queue[0].clone();
-                self.outbox.queue.push(spare);
-            }
-        }
         self.posted += 1;
         self.shared.latest.store(self.posted, Ordering::Release);
+        if self.thread.as_ref().is_none_or(JoinHandle::is_finished) {
+            // Nobody to learn from it: `collect` reports the stopped worker.
+            return self.posted;
+        }
+        if self.outbox.queued == self.outbox.queue.len() && block {
+            self.deliver(true);
+        }
+        if self.outbox.queued == self.outbox.queue.len() {
+            // A worker held up for [`QUEUE`] samples and more: the queue grows (one allocation)
+            // rather than the tick waits (it may hold what the worker needs, e.g. the GIL).
+            let spare = self.outbox.queue[0].clone();
+            self.outbox.queue.push(spare);
+        }
         let queued = &mut self.outbox.queue[self.outbox.queued];
         queued.correction.copy_from(correction);
         queued.generation = self.posted;
@@ -368,11 +373,16 @@ struct Worker {
     /// The epoch `learning` is in.
     epoch: u64,
     /// The last feasible result, until the control side adopts it (`Request::base` says so) or a
-    /// newer one replaces it, and its generation.
+    /// newer one replaces it, its generation and the weights it was planned for.
     candidate: PlanLevels,
     candidate_generation: Option<u64>,
-    /// Generation of the plan in `planner.levels` (the warm start).
+    candidate_weights: Vec<f64>,
+    /// Generation of the plan in `planner.levels` (the warm start), and the weights it was
+    /// planned for.
     levels_generation: u64,
+    levels_weights: Vec<f64>,
+    /// The initial plan's weights.
+    initial_weights: Vec<f64>,
     /// How long to busy-wait for a request before sleeping.
     spin: Duration,
 }
@@ -380,7 +390,21 @@ struct Worker {
 impl Worker {
     fn new(shared: Arc<Shared>, planner: Planner, learning: Learning, inbox: Request, spin: Duration) -> Self {
         let candidate = planner.levels.clone();
-        Worker { shared, learning, planner, inbox, epoch: 0, candidate, candidate_generation: None, levels_generation: 0, spin }
+        let initial_weights = learning.plan_weights().to_vec();
+        Worker {
+            shared,
+            learning,
+            planner,
+            inbox,
+            epoch: 0,
+            candidate,
+            candidate_generation: None,
+            candidate_weights: initial_weights.clone(),
+            levels_generation: 0,
+            levels_weights: initial_weights.clone(),
+            initial_weights,
+            spin,
+        }
     }
 
     /// Waits for a request newer than `taken`: busy until `spin` after `idle_since` (the end of
@@ -429,11 +453,14 @@ impl Worker {
                 self.learning.reset();
                 self.epoch = epoch;
             }
-            let Some(learned) = self.learn(epoch) else { continue };
+            let Some(newest_learned) = self.learn(epoch) else { continue };
             if self.shared.latest.load(Ordering::Acquire) != generation {
                 continue; // superseded before it started
             }
-            let outcome = if !learned {
+            self.rebase(base);
+            // A failed newest correction still replans for what the ones before it taught (their
+            // own replans were superseded), unless the tracked plan was made for those weights.
+            let outcome = if !newest_learned && self.learning.plan_weights() == &self.levels_weights[..] {
                 Some(Outcome::Unlearned)
             } else {
                 match catch_unwind(AssertUnwindSafe(|| self.solve(generation, base))) {
@@ -470,6 +497,9 @@ impl Worker {
         }
         let mut taught = Vec::with_capacity(count);
         for queued in &self.inbox.queue[..count] {
+            if self.shared.shutdown.load(Ordering::Acquire) {
+                break;
+            }
             let learning = &mut self.learning;
             let learned = catch_unwind(AssertUnwindSafe(|| learning.learn(&queued.correction)))
                 .unwrap_or_else(|payload| Err(panicked(payload.as_ref())));
@@ -500,6 +530,7 @@ impl Worker {
             Ok(info) if info.feasible => {
                 self.planner.hold(&mut self.candidate);
                 self.candidate_generation = Some(generation);
+                self.candidate_weights.copy_from_slice(self.learning.plan_weights());
                 Outcome::Feasible { plan: self.candidate.plan().to_vec(), info }
             }
             Ok(info) => Outcome::Infeasible { reason: self.planner.infeasibility(&info), info },
@@ -515,10 +546,12 @@ impl Worker {
         if self.candidate_generation == Some(base) {
             self.planner.promote(&mut self.candidate);
             self.candidate_generation = None;
+            std::mem::swap(&mut self.levels_weights, &mut self.candidate_weights);
         } else {
             // Generation 0: the initial plan (after `Learner::reset`). The control side adopts only
             // results of the worker, so no other generation can be asked for.
             self.planner.restart();
+            self.levels_weights.clone_from(&self.initial_weights);
         }
         self.levels_generation = base;
     }

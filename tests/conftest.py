@@ -112,6 +112,23 @@ def load_pybullet() -> Iterator[Callable[[str | Path], PyBulletRobot]]:
         p.disconnect(physicsClientId=client)
 
 
+@pytest.fixture(scope="module")
+def world():
+    """The simulated world (the JACO2 carrying the cup, in PyBullet), one per test module."""
+    from phri.sim import World
+
+    with World() as w:
+        yield w
+
+
+@pytest.fixture(scope="module")
+def planners(world):
+    """The planner of each of the paper's four tasks, by task name."""
+    from phri.sim.episode import Planner
+
+    return {name: Planner(phri.load_task(name), world) for name in ("human", "coffee", "table", "laptop")}
+
+
 @pytest.fixture
 def pybullet_jaco2(load_pybullet: Callable[[str | Path], PyBulletRobot]) -> PyBulletRobot:
     """The shipped JACO2 URDF in PyBullet: (client id, body id, {link name: link index}, movable joints)."""

@@ -544,14 +544,6 @@ def test_bad_task_safety_tables_are_clear_errors(tmp_path, table: str, match: st
 # -- the PyBullet backend, in short real episodes ----------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def world():
-    from phri.sim import World
-
-    with World() as w:
-        yield w
-
-
 class CountingRng:
     """A generator that counts its normal() draws (and draws them from a real one)."""
 

@@ -14,7 +14,7 @@ import phri
 import phri.demo
 import phri.sim.episode
 from phri.exceptions import InvalidParameterError, ShapeError, SimulationError
-from phri.sim import SIMULATORS, EpisodeConfig, ParticipantParams, Planner, World, run_episode
+from phri.sim import SIMULATORS, EpisodeConfig, ParticipantParams, run_episode
 from phri.sim.backend import PyBulletBackend
 from phri.sim.episode import robot_controls, run_on_loop, simulate_episode
 from phri.sim.native import run_native
@@ -28,17 +28,6 @@ ATOL_Q = 1e-9
 RTOL = 1e-9
 #: Results an episode is scored by.
 SCORES = ("effort", "interaction_time", "cost", "tracking_error", "min_clearance", "wall_contact_time")
-
-
-@pytest.fixture(scope="module")
-def world():
-    with World() as w:
-        yield w
-
-
-@pytest.fixture(scope="module")
-def planners(world):
-    return {name: Planner(phri.load_task(name), world) for name in ("human", "coffee", "table", "laptop")}
 
 
 def both(task, world, person, config, **kwargs):

@@ -18,12 +18,6 @@ WALL_MARGIN = 0.005
 TOLERANCE = 1e-3
 
 
-@pytest.fixture(scope="module")
-def world():
-    with World() as w:
-        yield w
-
-
 def furniture_distances(robot: phri.Robot, task: phri.Task, q: np.ndarray) -> np.ndarray:
     """Each moving body's smallest distance to the task's furniture at each row of `q` [m] (the base
     and link 1 stand on the mount and are left out, as the planner leaves them out)."""

@@ -41,17 +41,6 @@ def shortened(task: phri.Task, duration: float, waypoints: int) -> phri.Task:
     )
 
 
-@pytest.fixture(scope="module")
-def world():
-    with World() as w:
-        yield w
-
-
-@pytest.fixture(scope="module")
-def planners(world):
-    return {name: Planner(phri.load_task(name), world) for name in ("human", "coffee", "table", "laptop")}
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["human", "coffee", "table", "laptop"])
 def test_the_arm_tracks_its_plan_within_2_cm_with_nobody_touching_it(world, planners, name) -> None:

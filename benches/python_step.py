@@ -3,7 +3,8 @@ gravity compensation, and the implicit form the simulation uses), the learner's 
 between interactions) and its reference, the safety layer's two checks, each called from Python with
 numpy arrays; and the control-thread part of a whole tick as phri.control.ControlLoop runs it
 (check the state, observe without a replan, reference, implicit torque with the virtual wall, limit
-the torque), whose budget is 50 µs at the 99.9th percentile (libfranka leaves about 300 µs per tick).
+the torque), whose budget is 50 µs at the 99.9th percentile (libfranka leaves about 300 µs per tick),
+and the same tick while a person pushes, the learner's worker learning and replanning.
 
 Each call is timed individually with perf_counter_ns over --calls calls on varied states (a new state
 every call, the result written into a preallocated `out` where the API offers one); the median, the
@@ -26,15 +27,22 @@ from phri.control import safety_limits
 
 PLACE_LOWER = np.deg2rad([210.8, 101.6, 192.0, 114.7, 222.2, 246.1, 322.0])
 PICK_BASIC = np.deg2rad([104.2, 151.6, 183.8, 101.8, 224.2, 216.9, 310.8])
+#: A person's push [N·m], above the JACO2's detection thresholds on joints 1 and 3.
+PUSH = np.array([0.0, 12.0, 0.0, 6.0, 0.0, 0.0, 0.0])
 
 
-def timed(label: str, call, states: list) -> None:
-    samples = np.empty(len(states))
+def samples(call, states: list) -> np.ndarray:
+    """The time of each call of `call(*state)` [ns]."""
+    out = np.empty(len(states))
     for k, state in enumerate(states):
         began = time.perf_counter_ns()
         call(*state)
-        samples[k] = time.perf_counter_ns() - began
-    us = samples / 1e3
+        out[k] = time.perf_counter_ns() - began
+    return out
+
+
+def timed(label: str, call, states: list) -> None:
+    us = samples(call, states) / 1e3
     print(
         f"  {label:<44} median {np.median(us):6.2f} µs   p99 {np.percentile(us, 99):6.2f} µs"
         f"   p99.9 {np.percentile(us, 99.9):6.2f} µs"
@@ -69,12 +77,19 @@ def main() -> None:
         states,
     )
     features = phri.Features(robot, ["efficiency", "table"])
-    learner = phri.Learner(
-        features, phri.Deformation(), phri.WeightUpdate([0.0, 2.0], [1.0, 0.0], [1.0, 1.0]),
-        phri.InteractionDetector(), phri.TrajectoryOptimizer(features, duration=15.0), [1.0, 0.0],
-        PICK_BASIC, PLACE_LOWER,
-        sample_period=1e-3,
-    )  # fmt: skip
+    # Every call at a new tick, 1 ms apart: a task long enough for all of them (a tick's work does not
+    # depend on the task's length), and at least the study's 15 s.
+    duration = max(15.0, args.calls * 1e-3 + 1.0)
+
+    def make_learner(**kwargs) -> phri.Learner:
+        return phri.Learner(
+            features, phri.Deformation(), phri.WeightUpdate([0.0, 2.0], [1.0, 0.0], [1.0, 1.0]),
+            phri.InteractionDetector(), phri.TrajectoryOptimizer(features, duration=duration), [1.0, 0.0],
+            PICK_BASIC, PLACE_LOWER,
+            duration=duration, sample_period=1e-3, **kwargs,
+        )  # fmt: skip
+
+    learner = make_learner()
     quiet = np.array([0.5, 1.0, 0.0, 0.3, 0.2, 0.1, 0.0])  # below every threshold
     ticks = [(k * 1e-3, quiet) for k in range(args.calls)]  # every tick a sample instant
     timed("Learner.observe, a quiet sampled tick", learner.observe, ticks)
@@ -104,12 +119,7 @@ def main() -> None:
 
     # A whole control-thread tick, as ControlLoop._run makes it (the study's learner, sampling at
     # 1 kHz so every tick is a sample, nobody pushing: observe never replans).
-    learner = phri.Learner(
-        features, phri.Deformation(), phri.WeightUpdate([0.0, 2.0], [1.0, 0.0], [1.0, 1.0]),
-        phri.InteractionDetector(), phri.TrajectoryOptimizer(features, duration=15.0), [1.0, 0.0],
-        PICK_BASIC, PLACE_LOWER,
-        sample_period=1e-3,
-    )  # fmt: skip
+    learner = make_learner()
     ref = (np.zeros(7), np.zeros(7), np.zeros(7))
     tau = np.zeros(7)
     safety.reset()
@@ -126,6 +136,25 @@ def main() -> None:
             raise RuntimeError("the benchmark's torques must be finite")
 
     timed("ControlLoop tick, control-thread part", tick, clock)
+
+    # The same tick while a person pushes, with a learner as `phri run` makes it: the worker (wall
+    # clock) learns from each push and replans while the ticks go on. A push on every 100th tick
+    # (the study's 10 Hz samples of a push); the ticks run back to back, so the worker is busy
+    # throughout.
+    learner = make_learner(replan_latency=None)
+    observe = learner.observe
+    safety.reset()
+    pushed = [(t, q_k, qd_k, PUSH if i % 100 == 0 else quiet) for i, (t, q_k, qd_k, _) in enumerate(clock)]
+    us = samples(tick, pushed) / 1e3
+    push_us = us[::100]
+    print(
+        f"  {'the same, pushed every 100th tick':<44} median {np.median(us):6.2f} µs   p99 "
+        f"{np.percentile(us, 99):6.2f} µs   p99.9 {np.percentile(us, 99.9):6.2f} µs"
+    )
+    print(
+        f"  {'  the pushed ticks (the worker learns)':<44} median {np.median(push_us):6.2f} µs   p99 "
+        f"{np.percentile(push_us, 99):6.2f} µs   ({len(learner.history())} pushes recorded)"
+    )
 
 
 if __name__ == "__main__":

@@ -682,3 +682,27 @@ def test_the_loop_holds_a_franka_over_libfrankas_protocol() -> None:
     # The torque applied is g(q) plus the small spring and damper torques: the command held it.
     gravity = np.array([robot.gravity(q) for q in log["q"]])
     assert np.abs(log["tau"] - gravity).max() < 5.0
+
+
+def test_the_python_tick_bench_runs(capsys, monkeypatch) -> None:
+    """benches/python_step.py (make bench-python) on a few calls, so the bench behind the Timing
+    section of docs/control.md does not rot: every row is printed, and the pushed ticks' learner
+    recorded its pushes."""
+    import re
+    import sys
+
+    from conftest import load_bench
+
+    bench = load_bench("python_step")
+    monkeypatch.setattr(sys, "argv", ["python_step.py", "--calls", "1000"])
+    try:
+        bench.main()
+    finally:
+        gc.enable()  # the bench freezes and disables the collector, as a control loop does
+        gc.unfreeze()
+    out = capsys.readouterr().out
+    rows = ("ControlLoop tick, control-thread part", "the same, pushed every 100th tick", "the pushed ticks")
+    for row in rows:
+        assert row in out, out
+    recorded = re.search(r"\((\d+) pushes recorded\)", out)
+    assert recorded is not None and int(recorded.group(1)) >= 5, out

@@ -17,7 +17,7 @@ feature names") come from here.
    tasks, made for the task's own feature.
 
 Usage: python benches/misspecified.py [--people 10] [--seeds 2] [--skip-study]
-       (about 40 s on the project's 2-core machine)
+       (about 45 s on the project's 2-core machine)
 """
 
 from __future__ import annotations

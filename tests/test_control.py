@@ -686,8 +686,8 @@ def test_the_loop_holds_a_franka_over_libfrankas_protocol() -> None:
 
 def test_the_python_tick_bench_runs(capsys, monkeypatch) -> None:
     """benches/python_step.py (make bench-python) on a few calls, so the bench behind the Timing
-    section of docs/control.md does not rot: every row is printed, and the pushed ticks' learner
-    recorded its pushes."""
+    section of docs/control.md does not rot: every row is printed, and the pushed ticks deformed the
+    learner's plan."""
     import re
     import sys
 
@@ -704,5 +704,6 @@ def test_the_python_tick_bench_runs(capsys, monkeypatch) -> None:
     rows = ("ControlLoop tick, control-thread part", "the same, pushed every 100th tick", "the pushed ticks")
     for row in rows:
         assert row in out, out
-    recorded = re.search(r"\((\d+) pushes recorded\)", out)
-    assert recorded is not None and int(recorded.group(1)) >= 5, out
+    # The pushes early in the task all deform the plan (the control side's part, deterministic).
+    deformed = re.search(r"\((\d+) pushes deformed the plan", out)
+    assert deformed is not None and int(deformed.group(1)) >= 5, out

@@ -14,7 +14,8 @@ pub struct Interaction {
     pub u_h: Vec<f64>,
     /// Φ(ξ_H) − Φ(ξ_R) (empty when not learning or when the deformation was skipped).
     pub delta_phi: Vec<f64>,
-    /// Weights after the update.
+    /// Weights after the update. Where none was made (no deformation, a failed learning), the
+    /// learner's weights at the push: with a replan worker, those it had taken in by then.
     pub weights: Vec<f64>,
     /// Waypoints the deformation moved (0: skipped near the end, or not learning).
     pub moved: usize,

@@ -81,6 +81,21 @@ def paper_tasks(folder: Path) -> None:
             print(f"  {task:<8} {measure:<17} {a:9.3f} {b:9.3f} {b / a if a else float('nan'):9.3f}")
 
 
+def learning_episodes(task, world, planner, rule: str, people: int, seeds: int):
+    """(result, error) of the default population's first `people` people × `seeds` episode seeds,
+    learning on `task` under `rule`."""
+    for p in range(1, people + 1):
+        person = default_population().draw(0, p)
+        for seed in range(1, seeds + 1):
+            yield simulate_episode(task, world, person, EpisodeConfig(rule=rule), seed=seed, planner=planner)
+
+
+def push_betas(result) -> np.ndarray:
+    """β̂ of an episode's pushes (those the learner scored)."""
+    b = result.log_arrays["interaction_beta"]
+    return b[~np.isnan(b)]
+
+
 def unmodelled(folder: Path, people: int, seeds: int) -> None:
     task = misspecified_task(folder)
     planner = Planner(task, phri.Robot.jaco2())
@@ -98,18 +113,12 @@ def unmodelled(folder: Path, people: int, seeds: int) -> None:
     with World() as world:
         for rule in RULES:
             moves, betas, stopped = [], [], 0
-            for p in range(1, people + 1):
-                person = default_population().draw(0, p)
-                for seed in range(1, seeds + 1):
-                    result, error = simulate_episode(
-                        task, world, person, EpisodeConfig(rule=rule), seed=seed, planner=planner
-                    )
-                    if error is not None:
-                        stopped += 1
-                        continue
-                    moves.append(abs(result.final_weights[k] - task.vector("initial")[k]) / span)
-                    b = result.log_arrays["interaction_beta"]
-                    betas.extend(b[~np.isnan(b)])
+            for result, error in learning_episodes(task, world, planner, rule, people, seeds):
+                if error is not None:
+                    stopped += 1
+                    continue
+                moves.append(abs(result.final_weights[k] - task.vector("initial")[k]) / span)
+                betas.extend(push_betas(result))
             m, b = np.array(moves), np.array(betas)
             print(
                 f"  {rule:<6} {len(m):>8} {m.mean():>10.3f} {m.max():>8.3f} {int((m > 0.5).sum()):>7} "
@@ -126,17 +135,8 @@ def explained(people: int, seeds: int) -> None:
         for name in ("table", "coffee", "laptop", "human"):
             task = phri.load_task(name)
             planner = Planner(task, phri.Robot.jaco2())
-            betas = []
-            for p in range(1, people + 1):
-                person = default_population().draw(0, p)
-                for seed in range(1, seeds + 1):
-                    result, error = simulate_episode(
-                        task, world, person, EpisodeConfig(rule="all"), seed=seed, planner=planner
-                    )
-                    if error is None:
-                        b = result.log_arrays["interaction_beta"]
-                        betas.extend(b[~np.isnan(b)])
-            b = np.array(betas)
+            episodes = learning_episodes(task, world, planner, "all", people, seeds)
+            b = np.concatenate([push_betas(result) for result, error in episodes if error is None])
             below, full = (b < phri.BETA_THRESHOLD).mean(), (b >= phri.BETA_FULL).mean()
             print(
                 f"    {name:<7} beta median {np.median(b):6.2f}, {below:4.0%} below the threshold, "

@@ -700,13 +700,12 @@ fn worker_settings_and_absurd_transition_speeds_are_refused() {
     assert!(worker.debug_stall_worker(f64::NAN).is_err() && worker.debug_stall_worker(61.0).is_err());
 }
 
-/// φ = z − `top` of the cup frame at each waypoint [m] (the table feature without its smoothing),
-/// counting the segments evaluated on the thread `control`; an evaluation of a trajectory with a
-/// step of more than `fail_beyond` [rad] between waypoints fails (a feature error).
+/// The built-in table feature (the feature frame's height above the table top), counting the
+/// segments evaluated on the thread `control`; an evaluation of a trajectory with a step of more
+/// than `fail_beyond` [rad] between waypoints fails (a feature error).
 #[derive(Clone)]
 struct WatchedHeight {
-    frame: phri_core::FrameId,
-    top: f64,
+    table: phri_core::features::Table,
     control: std::thread::ThreadId,
     on_control: Arc<std::sync::atomic::AtomicUsize>,
     fail_beyond: f64,
@@ -721,20 +720,7 @@ impl phri_core::features::Feature for WatchedHeight {
         if std::thread::current().id() == self.control {
             self.on_control.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         }
-        let frame = Some(self.frame);
-        let value = seg.point_of(frame, 1.0).position.z - self.top;
-        if let Some(g) = grad {
-            let jac = seg.jacobian_of(frame, 1.0);
-            for j in 0..g.this.len() {
-                g.this[j] += g.scale * jac[(2, j)];
-            }
-            if let Some(h) = g.hessian {
-                if h.kinematic() {
-                    seg.add_position_curvature_of(frame, 1.0, &Vector3::z(), g.scale, h);
-                }
-            }
-        }
-        value
+        self.table.segment(seg, grad)
     }
 
     fn prepare(&mut self, trajectory: &[f64], n: usize, _need: phri_core::features::Need) -> phri_core::Result<()> {
@@ -757,8 +743,7 @@ fn watched_learner_failing(params: LearnerParams, on_control: &Arc<std::sync::at
     let model = Arc::new(jaco2());
     let l7 = model.frame_id("j2s7s300_link_7").unwrap();
     let watched = WatchedHeight {
-        frame: l7,
-        top: common::study::table_top(),
+        table: phri_core::features::Table { height: common::study::table_top() },
         control: std::thread::current().id(),
         on_control: on_control.clone(),
         fail_beyond,

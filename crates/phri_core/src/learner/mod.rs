@@ -304,33 +304,33 @@ impl Learner {
         }
         let m = optimizer.waypoints();
         let learning = Learning::new(features.clone(), update, belief, params.risk.clone(), weights, m);
-        let plan_weights = learning.plan_weights().to_vec();
+        let estimate = Estimate {
+            weights: learning.weights().to_vec(),
+            covariance: learning.covariance().to_vec(),
+            plan_weights: learning.plan_weights().to_vec(),
+        };
+        let plan_weights = &estimate.plan_weights;
         let full_cap = optimizer.params().max_iterations;
         let mut levels = optimizer.plan_levels();
-        let info = optimizer.solve_levels(&mut features, &plan_weights, start, goal, None, &mut levels)?;
+        let info = optimizer.solve_levels(&mut features, plan_weights, start, goal, None, &mut levels)?;
         if !info.feasible {
             return Err(PhriError::Planning {
                 reason: format!("the initial plan is not safe to track: {}", infeasibility(&info, &optimizer)),
             });
         }
         let plan0 = levels.plan().to_vec();
-        let seeds = Seeds::plan(params.seeds, learning.update(), &plan_weights, &mut features, &mut optimizer, start, goal)?;
+        let seeds = Seeds::plan(params.seeds, learning.update(), plan_weights, &mut features, &mut optimizer, start, goal)?;
         if params.replan_iterations > 0 {
             // The initial plan converged above; replans keep to the per-tick budget.
             optimizer.set_max_iterations(params.replan_iterations.min(full_cap))?;
         }
         let plan = TimedTrajectory::new(plan0.clone(), n, params.duration, params.interpolation)?;
-        let estimate = Estimate {
-            weights: learning.weights().to_vec(),
-            covariance: learning.covariance().to_vec(),
-            plan_weights: learning.plan_weights().to_vec(),
-        };
         let planner = Planner::new(features, optimizer, start, goal, seeds, levels)?;
         let replanner = if params.replan_latency.uses_worker() {
             Replanner::Worker(ReplanWorker::spawn(
                 planner,
                 learning,
-                Correction::new(m, n),
+                (m, n),
                 Duration::try_from_secs_f64(params.worker_spin).unwrap_or(Duration::MAX),
             )?)
         } else {

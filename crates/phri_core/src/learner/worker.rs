@@ -176,11 +176,9 @@ pub(super) struct ReplanWorker {
 
 impl ReplanWorker {
     /// Starts the worker with `learning` and `planner` (whose warm start is the initial plan,
-    /// generation 0); `shape` sizes the corrections' buffers. It busy-waits `spin` for each next
-    /// request before it sleeps (`LearnerParams::worker_spin`).
-    pub(super) fn spawn(planner: Planner, learning: Learning, shape: Correction, spin: Duration) -> Result<Self> {
-        let n = shape.u_h.len();
-        let m = shape.tracked.len() / n.max(1);
+    /// generation 0), for corrections of plans of m waypoints × n joints (`(m, n)`). It busy-waits
+    /// `spin` for each next request before it sleeps (`LearnerParams::worker_spin`).
+    pub(super) fn spawn(planner: Planner, learning: Learning, (m, n): (usize, usize), spin: Duration) -> Result<Self> {
         let shared = Arc::new(Shared {
             latest: Arc::new(AtomicU64::new(0)),
             delivered: AtomicU64::new(0),
